@@ -1,0 +1,5 @@
+import sys
+
+from gijax.cli import main
+
+sys.exit(main())

@@ -1,0 +1,50 @@
+"""The ``gijax`` command line: one subcommand per module in this package.
+
+Each ``gijax/cli/cmd_*.py`` module defines ``register(subparsers)``, which adds its subcommand
+and sets ``func`` (called with the parsed arguments, returning an exit code).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="gijax",
+        description=(
+            "Omnidirectional distance from multi-fisheye rigs with geometry-informed (GI) "
+            "distance candidates. Run 'gijax demo' first; 'gijax COMMAND --help' explains each "
+            "command."
+        ),
+    )
+    from gijax import __version__
+
+    parser.add_argument("--version", action="version", version=f"gijax {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    import gijax.cli as pkg
+
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
+        if info.name.startswith("cmd_"):
+            importlib.import_module(f"gijax.cli.{info.name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"gijax {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

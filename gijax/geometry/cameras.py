@@ -1,0 +1,316 @@
+"""Fisheye camera models as immutable pytrees with pure projection functions.
+
+Conventions (used everywhere in gijax):
+
+* Camera frame: x right, y down, z forward (OpenCV). Units: metres.
+* Pixel centres: the centre of the top-left pixel is at (u, v) = (0, 0); pixel (i, j) covers
+  [i - 0.5, i + 0.5] x [j - 0.5, j + 0.5]. This is the convention of OpenCV, Kalibr and basalt,
+  so calibrated intrinsics are used unchanged. An image of width W spans u in [-0.5, W - 0.5].
+* ``fov`` is the full cone angle of the field of view in radians, measured from the optical
+  axis (+z) in both directions: a point is inside when its angle to +z is at most ``fov / 2``.
+
+Every model exposes ``project(cam, points) -> (pixels, valid)`` and
+``unproject(cam, pixels) -> (unit rays, valid)``, batched over any leading shape. Points that
+are behind the camera, outside the field of view, outside the model's valid domain or outside
+the image come back with ``valid = False`` and *finite* pixels; every square root and division
+is guarded so that gradients stay finite too (no NaN leaking through ``jnp.where``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Union
+
+import jax
+import jax.numpy as jnp
+
+Array = jax.Array
+
+# Smallest squared radius treated as off-axis; below it the on-axis limit is used.
+_TINY = 1e-18
+# Newton iterations for the Kannala-Brandt inverse; quadratic convergence makes 12 ample
+# for any monotonic polynomial in float64, and the loop length is fixed so it is jit/grad-safe.
+_KB_NEWTON_ITERS = 12
+
+
+def _safe_sqrt(x: Array) -> Array:
+    """sqrt with a finite gradient at and below zero (the branch is masked by the caller)."""
+    return jnp.sqrt(jnp.where(x > _TINY, x, _TINY))
+
+
+def _safe_div(num: Array, den: Array) -> Array:
+    """num / den where den is replaced by 1 wherever it is not safely positive or negative."""
+    ok = jnp.abs(den) > 1e-12
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+
+
+def _field_of_view_ok(cam, points: Array) -> Array:
+    """Angle between the point and +z at most fov/2, without an arccos (valid past 180 deg)."""
+    norm = _safe_sqrt(jnp.sum(points**2, axis=-1))
+    return points[..., 2] >= jnp.cos(0.5 * cam.fov) * norm - 1e-12 * norm
+
+
+def _in_image(cam, pixels: Array) -> Array:
+    u, v = pixels[..., 0], pixels[..., 1]
+    return (u >= -0.5) & (u <= cam.width - 0.5) & (v >= -0.5) & (v <= cam.height - 0.5)
+
+
+def _normalised(pixels: Array, cam) -> tuple[Array, Array]:
+    return (pixels[..., 0] - cam.cx) / cam.fx, (pixels[..., 1] - cam.cy) / cam.fy
+
+
+def _to_pixels(cam, mx: Array, my: Array) -> Array:
+    return jnp.stack([cam.fx * mx + cam.cx, cam.fy * my + cam.cy], axis=-1)
+
+
+def _camera(cls=None, *, params: tuple[str, ...]):
+    """Register a frozen dataclass as a pytree: intrinsics are leaves, the size is static."""
+
+    def wrap(cls):
+        cls = dataclasses.dataclass(frozen=True)(cls)
+        cls.PARAMS = params
+        return jax.tree_util.register_dataclass(
+            cls, data_fields=[*params, "fov"], meta_fields=["width", "height"]
+        )
+
+    return wrap
+
+
+@_camera(params=("fx", "fy", "cx", "cy", "xi", "alpha"))
+class DoubleSphere:
+    """Double Sphere model (Usenko et al. 2018): intrinsics fx, fy, cx, cy, xi, alpha."""
+
+    fx: Array
+    fy: Array
+    cx: Array
+    cy: Array
+    xi: Array
+    alpha: Array
+    fov: Array
+    width: int
+    height: int
+
+    MODEL = "ds"
+
+    def _project(self, p: Array) -> tuple[Array, Array]:
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        xi, alpha = self.xi, self.alpha
+        d1 = _safe_sqrt(x * x + y * y + z * z)
+        zs = xi * d1 + z
+        d2 = _safe_sqrt(x * x + y * y + zs * zs)
+        den = alpha * d2 + (1.0 - alpha) * zs
+        w1 = jnp.where(alpha <= 0.5, alpha / (1.0 - alpha), (1.0 - alpha) / alpha)
+        w2 = (w1 + xi) / _safe_sqrt(2.0 * w1 * xi + xi * xi + 1.0)
+        valid = (z > -w2 * d1) & (den > 0.0)
+        return _to_pixels(self, _safe_div(x, den), _safe_div(y, den)), valid
+
+    def _unproject(self, px: Array) -> tuple[Array, Array]:
+        mx, my = _normalised(px, self)
+        xi, alpha = self.xi, self.alpha
+        r2 = mx * mx + my * my
+        disc = 1.0 - (2.0 * alpha - 1.0) * r2
+        valid = disc >= 0.0
+        mz = (1.0 - alpha * alpha * r2) / (alpha * _safe_sqrt(disc) + 1.0 - alpha)
+        inner = mz * mz + (1.0 - xi * xi) * r2
+        valid &= inner >= 0.0
+        factor = (mz * xi + _safe_sqrt(inner)) / (mz * mz + r2)
+        ray = jnp.stack([factor * mx, factor * my, factor * mz - xi], axis=-1)
+        return ray, valid
+
+
+@_camera(params=("fx", "fy", "cx", "cy", "alpha", "beta"))
+class EUCM:
+    """Extended Unified Camera Model (Khomutenko et al. 2016): fx, fy, cx, cy, alpha, beta."""
+
+    fx: Array
+    fy: Array
+    cx: Array
+    cy: Array
+    alpha: Array
+    beta: Array
+    fov: Array
+    width: int
+    height: int
+
+    MODEL = "eucm"
+
+    def _project(self, p: Array) -> tuple[Array, Array]:
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        alpha, beta = self.alpha, self.beta
+        rho = _safe_sqrt(beta * (x * x + y * y) + z * z)
+        den = alpha * rho + (1.0 - alpha) * z
+        w = jnp.where(alpha <= 0.5, alpha / (1.0 - alpha), (1.0 - alpha) / alpha)
+        valid = (z > -w * rho) & (den > 0.0)
+        return _to_pixels(self, _safe_div(x, den), _safe_div(y, den)), valid
+
+    def _unproject(self, px: Array) -> tuple[Array, Array]:
+        mx, my = _normalised(px, self)
+        alpha, beta = self.alpha, self.beta
+        r2 = mx * mx + my * my
+        disc = 1.0 - (2.0 * alpha - 1.0) * beta * r2
+        valid = disc >= 0.0
+        mz = (1.0 - beta * alpha * alpha * r2) / (alpha * _safe_sqrt(disc) + 1.0 - alpha)
+        return jnp.stack([mx, my, mz], axis=-1), valid
+
+
+@_camera(params=("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"))
+class KannalaBrandt:
+    """Kannala-Brandt / OpenCV fisheye: r = theta (1 + k1 theta^2 + ... + k4 theta^8)."""
+
+    fx: Array
+    fy: Array
+    cx: Array
+    cy: Array
+    k1: Array
+    k2: Array
+    k3: Array
+    k4: Array
+    fov: Array
+    width: int
+    height: int
+
+    MODEL = "kb"
+
+    def _distort(self, theta: Array) -> tuple[Array, Array]:
+        """theta_d(theta) and its derivative."""
+        t2 = theta * theta
+        poly = 1.0 + t2 * (self.k1 + t2 * (self.k2 + t2 * (self.k3 + t2 * self.k4)))
+        dpoly = 1.0 + t2 * (3 * self.k1 + t2 * (5 * self.k2 + t2 * (7 * self.k3 + t2 * 9 * self.k4)))
+        return theta * poly, dpoly
+
+    def _project(self, p: Array) -> tuple[Array, Array]:
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        r2 = x * x + y * y
+        r = _safe_sqrt(r2)
+        theta = jnp.arctan2(r, z)
+        theta_d, slope = self._distort(theta)
+        off_axis = r2 > 1e-20
+        # On the axis theta_d / r -> 1 / z (z > 0 there); both branches are finite.
+        scale = jnp.where(off_axis, theta_d / r, _safe_div(1.0, z))
+        valid = (slope > 0.0) & (off_axis | (z > 0.0))
+        return _to_pixels(self, scale * x, scale * y), valid
+
+    def _unproject(self, px: Array) -> tuple[Array, Array]:
+        mx, my = _normalised(px, self)
+        r2 = mx * mx + my * my
+        theta_d = _safe_sqrt(r2)
+
+        def newton(_, theta):
+            f, df = self._distort(theta)
+            return theta - (f - theta_d) / jnp.where(jnp.abs(df) > 1e-9, df, 1e-9)
+
+        theta = jax.lax.fori_loop(0, _KB_NEWTON_ITERS, newton, theta_d)
+        f, slope = self._distort(theta)
+        valid = (slope > 0.0) & (jnp.abs(f - theta_d) < 1e-6 * (1.0 + theta_d)) & (theta >= 0.0)
+        scale = jnp.where(r2 > 1e-20, jnp.sin(theta) / theta_d, 1.0)
+        return jnp.stack([scale * mx, scale * my, jnp.cos(theta)], axis=-1), valid
+
+
+@_camera(params=("fx", "fy", "cx", "cy"))
+class Equidistant:
+    """Equidistant fisheye r = f * theta (the synthetic cameras of the paper's dataset)."""
+
+    fx: Array
+    fy: Array
+    cx: Array
+    cy: Array
+    fov: Array
+    width: int
+    height: int
+
+    MODEL = "equidistant"
+
+    def _project(self, p: Array) -> tuple[Array, Array]:
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        r2 = x * x + y * y
+        r = _safe_sqrt(r2)
+        theta = jnp.arctan2(r, z)
+        off_axis = r2 > 1e-20
+        scale = jnp.where(off_axis, theta / r, _safe_div(1.0, z))
+        valid = off_axis | (z > 0.0)
+        return _to_pixels(self, scale * x, scale * y), valid
+
+    def _unproject(self, px: Array) -> tuple[Array, Array]:
+        mx, my = _normalised(px, self)
+        r2 = mx * mx + my * my
+        theta = _safe_sqrt(r2)
+        scale = jnp.where(r2 > 1e-20, jnp.sin(theta) / theta, 1.0)
+        ray = jnp.stack([scale * mx, scale * my, jnp.cos(theta)], axis=-1)
+        return ray, theta <= jnp.pi
+
+
+Camera = Union[DoubleSphere, EUCM, KannalaBrandt, Equidistant]
+CAMERA_MODELS: dict[str, type] = {
+    cls.MODEL: cls for cls in (DoubleSphere, EUCM, KannalaBrandt, Equidistant)
+}
+
+
+def project(cam: Camera, points: Array) -> tuple[Array, Array]:
+    """Project camera-frame points ``(..., 3)`` to pixels ``(..., 2)`` and a validity mask.
+
+    Valid means: inside the model's domain, inside the field of view and inside the image.
+    Invalid points still get finite pixels (and finite gradients).
+    """
+    points = jnp.asarray(points)
+    pixels, valid = cam._project(points)
+    pixels = jnp.where(jnp.isfinite(pixels), pixels, 0.0)
+    valid = valid & _field_of_view_ok(cam, points) & _in_image(cam, pixels)
+    return pixels, valid
+
+
+def unproject(cam: Camera, pixels: Array) -> tuple[Array, Array]:
+    """Unproject pixels ``(..., 2)`` to unit rays ``(..., 3)`` in the camera frame, and validity."""
+    pixels = jnp.asarray(pixels)
+    ray, valid = cam._unproject(pixels)
+    norm = _safe_sqrt(jnp.sum(ray**2, axis=-1, keepdims=True))
+    ray = ray / norm
+    fallback = jnp.zeros_like(ray).at[..., 2].set(1.0)
+    finite = jnp.all(jnp.isfinite(ray), axis=-1)
+    ray = jnp.where(finite[..., None], ray, fallback)
+    valid = valid & finite & _field_of_view_ok(cam, ray) & _in_image(cam, pixels)
+    return ray, valid
+
+
+def make_camera(model: str, params: dict, width: int, height: int, fov_deg: float | None = None,
+                dtype=jnp.float32) -> Camera:
+    """Build a camera from a model name (``ds``, ``eucm``, ``kb``, ``equidistant``) and values.
+
+    ``fov_deg`` defaults to the model's natural limit: 360 (no limit beyond the model's own
+    domain) for all models.
+    """
+    if model not in CAMERA_MODELS:
+        raise ValueError(f"unknown camera model {model!r}; expected one of {sorted(CAMERA_MODELS)}")
+    cls = CAMERA_MODELS[model]
+    missing = [k for k in cls.PARAMS if k not in params]
+    if missing:
+        raise ValueError(f"camera model {model!r} is missing intrinsics {missing}")
+    fov = jnp.deg2rad(jnp.asarray(360.0 if fov_deg is None else fov_deg, dtype))
+    leaves = {k: jnp.asarray(params[k], dtype) for k in cls.PARAMS}
+    return cls(**leaves, fov=fov, width=int(width), height=int(height))
+
+
+def camera_params(cam: Camera) -> dict[str, float]:
+    """The intrinsics as plain floats (for printing and files)."""
+    return {k: float(getattr(cam, k)) for k in cam.PARAMS}
+
+
+def scale_camera(cam: Camera, factor: float) -> Camera:
+    """The same lens on an image resized by ``factor`` (pixel-centre convention preserved).
+
+    A pixel centre u maps to (u + 0.5) * factor - 0.5, so cx, cy shift accordingly.
+    """
+    width = int(round(cam.width * factor))
+    height = int(round(cam.height * factor))
+    fx = cam.fx * width / cam.width
+    fy = cam.fy * height / cam.height
+    cx = (cam.cx + 0.5) * width / cam.width - 0.5
+    cy = (cam.cy + 0.5) * height / cam.height - 0.5
+    return dataclasses.replace(cam, fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height)
+
+
+def pixel_grid(width: int, height: int, dtype=jnp.float32) -> Array:
+    """(height, width, 2) pixel-centre coordinates (u, v) of an image."""
+    u = jnp.arange(width, dtype=dtype)
+    v = jnp.arange(height, dtype=dtype)
+    uu, vv = jnp.meshgrid(u, v, indexing="xy")
+    return jnp.stack([uu, vv], axis=-1)

@@ -1,0 +1,170 @@
+"""Multi-camera rigs: cameras, camera-to-rig poses, a reference point, masks, an occluder.
+
+Rig frame: +z is the viewing axis shared by the cameras (the pole of the rig panorama), x and y
+span the mounting plane; like the camera frame it is right-handed (x right, y down, z forward
+when seen from behind the cameras). Poses are camera-to-rig: a point ``p_c`` in camera i's
+frame is ``R_i @ p_c + t_i`` in the rig frame, so ``t_i`` is camera i's centre.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gijax.geometry import cameras as cam_lib
+from gijax.geometry.occluder import FAR, Cylinder, cylinder_hit
+
+Array = jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class Rig:
+    """N cameras with camera-to-rig poses; a pytree (names are static, the rest are leaves).
+
+    Attributes:
+      cameras: one camera pytree per camera (models may differ).
+      rotations: (N, 3, 3) camera-to-rig rotations.
+      translations: (N, 3) camera centres in the rig frame, metres.
+      reference: (3,) the panorama centre in the rig frame.
+      masks: per camera ``None`` (all valid) or an (H, W) array, 1 = valid, 0 = self-occluded.
+      occluder: the rig's body (or ``None``), used for rendering and to derive masks.
+      names: camera names (static).
+    """
+
+    cameras: tuple
+    rotations: Array
+    translations: Array
+    reference: Array
+    masks: tuple
+    occluder: Optional[Cylinder] = None
+    names: tuple = ()
+
+    @property
+    def num_cameras(self) -> int:
+        return len(self.cameras)
+
+    def replace(self, **kw) -> "Rig":
+        return dataclasses.replace(self, **kw)
+
+
+jax.tree_util.register_dataclass(
+    Rig,
+    data_fields=["cameras", "rotations", "translations", "reference", "masks", "occluder"],
+    meta_fields=["names"],
+)
+
+
+def make_rig(cameras: Sequence, rotations, translations, reference=None, masks=None,
+             occluder: Optional[Cylinder] = None, names: Sequence[str] | None = None,
+             dtype=jnp.float32) -> Rig:
+    n = len(cameras)
+    if n == 0:
+        raise ValueError("a rig needs at least one camera; found 0")
+    rotations = jnp.asarray(rotations, dtype).reshape(n, 3, 3)
+    translations = jnp.asarray(translations, dtype).reshape(n, 3)
+    reference = jnp.zeros(3, dtype) if reference is None else jnp.asarray(reference, dtype)
+    masks = tuple([None] * n) if masks is None else tuple(masks)
+    if len(masks) != n:
+        raise ValueError(f"rig has {n} cameras but {len(masks)} masks")
+    names = tuple(names) if names is not None else tuple(f"cam{i}" for i in range(n))
+    return Rig(tuple(cameras), rotations, translations, reference, masks, occluder, names)
+
+
+def rig_to_camera(rig: Rig, i: int, points: Array) -> Array:
+    """Rig-frame points (..., 3) into camera i's frame: R_i^T (p - t_i)."""
+    return (points - rig.translations[i]) @ rig.rotations[i]
+
+
+def camera_to_rig(rig: Rig, i: int, points: Array) -> Array:
+    """Camera i's frame points (..., 3) into the rig frame: R_i p + t_i."""
+    return points @ rig.rotations[i].T + rig.translations[i]
+
+
+def is_homogeneous(rig: Rig) -> bool:
+    """True when all cameras share model and image size (so they can be stacked and vmapped)."""
+    first = rig.cameras[0]
+    same = all(type(c) is type(first) and (c.width, c.height) == (first.width, first.height)
+               for c in rig.cameras)
+    masks_same = all(m is None for m in rig.masks) or all(
+        m is not None and m.shape == (first.height, first.width) for m in rig.masks)
+    return same and masks_same
+
+
+def map_cameras(fn: Callable, rig: Rig, *per_camera) -> Array:
+    """``stack([fn(cam_i, R_i, t_i, mask_i, *args_i) for i])``, vmapped when possible.
+
+    ``per_camera`` arrays carry a leading camera axis. ``mask_i`` is an (H, W) array of ones
+    where the rig has no mask for that camera. A rig whose cameras differ in model or size is
+    handled by a Python loop over cameras (the camera count is static either way).
+    """
+    masks = [m if m is not None else jnp.ones((c.height, c.width), jnp.float32)
+             for c, m in zip(rig.cameras, rig.masks)]
+    if is_homogeneous(rig):
+        cams = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *rig.cameras)
+        return jax.vmap(fn)(cams, rig.rotations, rig.translations, jnp.stack(masks), *per_camera)
+    outs = [fn(c, rig.rotations[i], rig.translations[i], masks[i], *[a[i] for a in per_camera])
+            for i, c in enumerate(rig.cameras)]
+    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *outs)
+
+
+def project_rig_points(rig: Rig, points: Array) -> tuple[Array, Array]:
+    """Project rig-frame points (..., 3) into every camera: pixels (N, ..., 2), valid (N, ...).
+
+    Validity includes the camera's self-occlusion mask (nearest pixel) where one is set.
+    """
+
+    def one(cam, rot, trans, mask, ):
+        pc = (points - trans) @ rot
+        px, ok = cam_lib.project(cam, pc)
+        col = jnp.clip(jnp.round(px[..., 0]), 0, mask.shape[1] - 1).astype(jnp.int32)
+        row = jnp.clip(jnp.round(px[..., 1]), 0, mask.shape[0] - 1).astype(jnp.int32)
+        return px, ok & (mask[row, col] > 0.5)
+
+    return map_cameras(one, rig)
+
+
+def occlusion_mask(rig: Rig, i: int) -> Array:
+    """Camera i's self-occlusion mask from the rig's occluder: (H, W) float32, 1 = sees the world.
+
+    A pixel is occluded when its ray hits the occluder (at any distance); pixels outside the
+    model's valid image are 0 as well.
+    """
+    cam = rig.cameras[i]
+    px = cam_lib.pixel_grid(cam.width, cam.height)
+    ray_c, ok = cam_lib.unproject(cam, px)
+    if rig.occluder is None:
+        return ok.astype(jnp.float32)
+    dirs = ray_c @ rig.rotations[i].T
+    hit = cylinder_hit(rig.occluder, rig.translations[i], dirs)
+    return (ok & (hit >= FAR)).astype(jnp.float32)
+
+
+def with_occlusion_masks(rig: Rig) -> Rig:
+    """The rig with every camera's mask derived from its occluder (see :func:`occlusion_mask`)."""
+    return rig.replace(masks=tuple(occlusion_mask(rig, i) for i in range(rig.num_cameras)))
+
+
+def scale_rig(rig: Rig, factor: float) -> Rig:
+    """Every camera's image resized by ``factor`` (masks resampled by nearest neighbour)."""
+    cams = tuple(cam_lib.scale_camera(c, factor) for c in rig.cameras)
+    masks = []
+    for c_old, c_new, m in zip(rig.cameras, cams, rig.masks):
+        if m is None:
+            masks.append(None)
+            continue
+        rows = np.clip(((np.arange(c_new.height) + 0.5) / factor - 0.5).round().astype(int), 0,
+                       c_old.height - 1)
+        cols = np.clip(((np.arange(c_new.width) + 0.5) / factor - 0.5).round().astype(int), 0,
+                       c_old.width - 1)
+        masks.append(jnp.asarray(np.asarray(m)[rows][:, cols]))
+    return rig.replace(cameras=cams, masks=tuple(masks))
+
+
+def pairwise_baselines(rig: Rig) -> np.ndarray:
+    """(N, N) distances between camera centres, metres."""
+    t = np.asarray(rig.translations, np.float64)
+    return np.linalg.norm(t[:, None] - t[None], axis=-1)
