@@ -23,6 +23,7 @@ from typing import Union
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 Array = jax.Array
 
@@ -44,6 +45,22 @@ def _safe_div(num: Array, den: Array) -> Array:
     return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
 
 
+def _blend(alpha: Array, d: Array, z: Array, a2_rest: Array) -> Array:
+    """``alpha * d + (1 - alpha) * z`` for ``d = sqrt(rest + z^2) >= |z|``, well conditioned.
+
+    Past 90 degrees ``z < 0`` and the two terms cancel, which costs float32 several ulps of
+    pixel accuracy at the rim of a wide lens. There the product with the conjugate gives the
+    same value without the cancellation:
+    ``(alpha^2 rest + (2 alpha - 1) z^2) / (alpha d - (1 - alpha) z)``, with
+    ``a2_rest = alpha^2 rest``. The conjugate is used only where its own terms do not cancel
+    (``z < 0`` and ``alpha >= 0.5``); both branches are finite everywhere.
+    """
+    direct = alpha * d + (1.0 - alpha) * z
+    conj_den = alpha * d - (1.0 - alpha) * z
+    conj = _safe_div(a2_rest + (2.0 * alpha - 1.0) * z * z, conj_den)
+    return jnp.where((z < 0.0) & (alpha >= 0.5), conj, direct)
+
+
 def _field_of_view_ok(cam, points: Array) -> Array:
     """Angle between the point and +z at most fov/2, without an arccos (valid past 180 deg)."""
     norm = _safe_sqrt(jnp.sum(points**2, axis=-1))
@@ -57,6 +74,21 @@ def _in_image(cam, pixels: Array) -> Array:
 
 def _normalised(pixels: Array, cam) -> tuple[Array, Array]:
     return (pixels[..., 0] - cam.cx) / cam.fx, (pixels[..., 1] - cam.cy) / cam.fy
+
+
+def _to_pixels_ratio(cam, x: Array, y: Array, den: Array, scale: Array) -> tuple[Array, Array]:
+    """Pixels of the normalised coordinates ``(x / den, y / den)`` and where they are finite.
+
+    ``(f * x) / den`` rounds once less than ``f * (x / den)``: a float32 ulp saved at the rim.
+    A denominator below ``1e-6`` of the point's ``scale`` (its distance) would put the pixel a
+    million focal lengths out; such points are reported not ``ok`` and get the principal point,
+    which keeps values and gradients bounded.
+    """
+    ok = den > 1e-6 * scale
+    den = jnp.where(ok, den, 1.0)
+    mx = jnp.where(ok, (cam.fx * x) / den, 0.0)
+    my = jnp.where(ok, (cam.fy * y) / den, 0.0)
+    return jnp.stack([mx + cam.cx, my + cam.cy], axis=-1), ok
 
 
 def _to_pixels(cam, mx: Array, my: Array) -> Array:
@@ -95,14 +127,16 @@ class DoubleSphere:
     def _project(self, p: Array) -> tuple[Array, Array]:
         x, y, z = p[..., 0], p[..., 1], p[..., 2]
         xi, alpha = self.xi, self.alpha
-        d1 = _safe_sqrt(x * x + y * y + z * z)
+        r2 = x * x + y * y
+        d1 = _safe_sqrt(r2 + z * z)
         zs = xi * d1 + z
-        d2 = _safe_sqrt(x * x + y * y + zs * zs)
-        den = alpha * d2 + (1.0 - alpha) * zs
-        w1 = jnp.where(alpha <= 0.5, alpha / (1.0 - alpha), (1.0 - alpha) / alpha)
+        d2 = _safe_sqrt(r2 + zs * zs)
+        den = _blend(alpha, d2, zs, alpha * alpha * r2)
+        # alpha/(1-alpha) below 0.5, (1-alpha)/alpha above: one expression, no 0/0 branch.
+        w1 = jnp.minimum(alpha, 1.0 - alpha) / jnp.maximum(alpha, 1.0 - alpha)
         w2 = (w1 + xi) / _safe_sqrt(2.0 * w1 * xi + xi * xi + 1.0)
-        valid = (z > -w2 * d1) & (den > 0.0)
-        return _to_pixels(self, _safe_div(x, den), _safe_div(y, den)), valid
+        pixels, ok = _to_pixels_ratio(self, x, y, den, d1)
+        return pixels, (z > -w2 * d1) & ok
 
     def _unproject(self, px: Array) -> tuple[Array, Array]:
         mx, my = _normalised(px, self)
@@ -137,11 +171,12 @@ class EUCM:
     def _project(self, p: Array) -> tuple[Array, Array]:
         x, y, z = p[..., 0], p[..., 1], p[..., 2]
         alpha, beta = self.alpha, self.beta
-        rho = _safe_sqrt(beta * (x * x + y * y) + z * z)
-        den = alpha * rho + (1.0 - alpha) * z
-        w = jnp.where(alpha <= 0.5, alpha / (1.0 - alpha), (1.0 - alpha) / alpha)
-        valid = (z > -w * rho) & (den > 0.0)
-        return _to_pixels(self, _safe_div(x, den), _safe_div(y, den)), valid
+        br2 = beta * (x * x + y * y)
+        rho = _safe_sqrt(br2 + z * z)
+        den = _blend(alpha, rho, z, alpha * alpha * br2)
+        w = jnp.minimum(alpha, 1.0 - alpha) / jnp.maximum(alpha, 1.0 - alpha)
+        pixels, ok = _to_pixels_ratio(self, x, y, den, rho)
+        return pixels, (z > -w * rho) & ok
 
     def _unproject(self, px: Array) -> tuple[Array, Array]:
         mx, my = _normalised(px, self)
@@ -201,7 +236,9 @@ class KannalaBrandt:
 
         theta = jax.lax.fori_loop(0, _KB_NEWTON_ITERS, newton, theta_d)
         f, slope = self._distort(theta)
-        valid = (slope > 0.0) & (jnp.abs(f - theta_d) < 1e-6 * (1.0 + theta_d)) & (theta >= 0.0)
+        # A root past pi (possible for a polynomial that turns back up) is not a direction.
+        valid = ((slope > 0.0) & (jnp.abs(f - theta_d) < 1e-6 * (1.0 + theta_d)) & (theta >= 0.0)
+                 & (theta <= jnp.pi))
         scale = jnp.where(r2 > 1e-20, jnp.sin(theta) / theta_d, 1.0)
         return jnp.stack([scale * mx, scale * my, jnp.cos(theta)], axis=-1), valid
 
@@ -254,7 +291,9 @@ def project(cam: Camera, points: Array) -> tuple[Array, Array]:
     points = jnp.asarray(points)
     pixels, valid = cam._project(points)
     pixels = jnp.where(jnp.isfinite(pixels), pixels, 0.0)
-    valid = valid & _field_of_view_ok(cam, points) & _in_image(cam, pixels)
+    # The camera centre itself has no direction.
+    nonzero = jnp.sum(points * points, axis=-1) > _TINY
+    valid = valid & nonzero & _field_of_view_ok(cam, points) & _in_image(cam, pixels)
     return pixels, valid
 
 
@@ -284,7 +323,8 @@ def make_camera(model: str, params: dict, width: int, height: int, fov_deg: floa
     missing = [k for k in cls.PARAMS if k not in params]
     if missing:
         raise ValueError(f"camera model {model!r} is missing intrinsics {missing}")
-    fov = jnp.deg2rad(jnp.asarray(360.0 if fov_deg is None else fov_deg, dtype))
+    # Degrees to radians in float64 first, so a value written as degrees reads back bit-exact.
+    fov = jnp.asarray(np.deg2rad(np.float64(360.0 if fov_deg is None else fov_deg)), dtype)
     leaves = {k: jnp.asarray(params[k], dtype) for k in cls.PARAMS}
     return cls(**leaves, fov=fov, width=int(width), height=int(height))
 

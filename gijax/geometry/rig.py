@@ -9,6 +9,7 @@ frame is ``R_i @ p_c + t_i`` in the rig frame, so ``t_i`` is camera i's centre.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Callable, Optional, Sequence
 
 import jax
@@ -133,13 +134,18 @@ def occlusion_mask(rig: Rig, i: int) -> Array:
     A pixel is occluded when its ray hits the occluder (at any distance); pixels outside the
     model's valid image are 0 as well.
     """
-    cam = rig.cameras[i]
+    return _occlusion_mask(rig.cameras[i], rig.rotations[i], rig.translations[i], rig.occluder)
+
+
+@jax.jit
+def _occlusion_mask(cam, rotation: Array, translation: Array, occluder) -> Array:
+    # One compiled kernel per camera model and size instead of dozens of eager full-image ops.
     px = cam_lib.pixel_grid(cam.width, cam.height)
     ray_c, ok = cam_lib.unproject(cam, px)
-    if rig.occluder is None:
+    if occluder is None:
         return ok.astype(jnp.float32)
-    dirs = ray_c @ rig.rotations[i].T
-    hit = cylinder_hit(rig.occluder, rig.translations[i], dirs)
+    dirs = ray_c @ rotation.T
+    hit = cylinder_hit(occluder, translation, dirs)
     return (ok & (hit >= FAR)).astype(jnp.float32)
 
 
@@ -168,3 +174,36 @@ def pairwise_baselines(rig: Rig) -> np.ndarray:
     """(N, N) distances between camera centres, metres."""
     t = np.asarray(rig.translations, np.float64)
     return np.linalg.norm(t[:, None] - t[None], axis=-1)
+
+
+def describe_rig(rig: Rig) -> str:
+    """A human-readable summary: cameras, models, intrinsics, positions, fields of view,
+    pairwise baselines (metres), reference point and occluder."""
+    from gijax.geometry.cameras import camera_params
+
+    lines = [f"rig with {rig.num_cameras} camera(s); poses camera-to-rig, metres"]
+    for i, cam in enumerate(rig.cameras):
+        pos = np.asarray(rig.translations[i], np.float64)
+        axis = np.asarray(rig.rotations[i], np.float64)[:, 2]
+        intr = ", ".join(f"{k}={v:.6g}" for k, v in camera_params(cam).items())
+        fov = math.degrees(float(cam.fov))
+        mask = rig.masks[i]
+        valid = "" if mask is None else f", mask {float(np.asarray(mask).mean()) * 100:.1f}% valid"
+        lines.append(f"  {rig.names[i]}: model {cam.MODEL}, {cam.width}x{cam.height} px, "
+                     f"fov {fov:.1f} deg{valid}")
+        lines.append(f"    intrinsics: {intr}")
+        lines.append(f"    position [{pos[0]:+.4f}, {pos[1]:+.4f}, {pos[2]:+.4f}] m, optical axis "
+                     f"[{axis[0]:+.3f}, {axis[1]:+.3f}, {axis[2]:+.3f}]")
+    b = pairwise_baselines(rig)
+    if rig.num_cameras > 1:
+        lines.append("pairwise baselines (m):")
+        lines.append("        " + "".join(f"{n:>10s}" for n in rig.names))
+        for i, n in enumerate(rig.names):
+            lines.append(f"  {n:>6s}" + "".join(f"{b[i, j]:10.4f}" for j in range(len(b))))
+    ref = np.asarray(rig.reference, np.float64)
+    lines.append(f"reference point: [{ref[0]:+.4f}, {ref[1]:+.4f}, {ref[2]:+.4f}] m")
+    if rig.occluder is not None:
+        o = rig.occluder
+        lines.append(f"occluder: cylinder at ({float(o.x):+.4f}, {float(o.y):+.4f}), radius "
+                     f"{float(o.radius):.4f} m, z {float(o.z_min):.3f}..{float(o.z_max):.3f} m")
+    return "\n".join(lines)

@@ -3,6 +3,7 @@
 The network consumes, per camera, an equirectangular image of the hemisphere around that
 camera's optical axis (latitude -90..0 deg with the pole on the axis, longitude -180..180 deg;
 512 x 2048 in the paper). Pixels the lens does not see, or that its mask marks invalid, are 0.
+Sampling is bilinear by a 4-neighbour gather (:func:`gijax.sampling.bilinear_sample`).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.panorama import Panorama, ray_grid
@@ -30,7 +32,8 @@ def surrogate_image(cam, image: Array, mask: Array, pano: Panorama) -> tuple[Arr
     """One camera: image (h, w, C) float and mask (h, w) -> surrogate (H, W, C) and mask (H, W).
 
     The returned mask is the bilinearly resampled validity mask times the projection validity,
-    so it is fractional near mask edges; use ``> 0.5`` (or ``> 0``) for a binary decision.
+    so it is fractional near mask edges; use ``> 0.5`` for a binary decision. The surrogate
+    colours are zeroed where that mask is at most 0.5.
     """
     px, ok = surrogate_grid(cam, pano)
     img, ok_img = bilinear_sample(image, px, ok)
@@ -39,14 +42,51 @@ def surrogate_image(cam, image: Array, mask: Array, pano: Panorama) -> tuple[Arr
     return img * (m > 0.5)[..., None], m
 
 
+def check_images(rig: Rig, images, masks=None) -> None:
+    """ValueError unless ``images`` (N, h, w, C) and ``masks`` (N, h, w) fit the rig's cameras."""
+    n = rig.num_cameras
+    shape = tuple(np.shape(images))
+    if len(shape) != 4:
+        raise ValueError(f"images must have shape (num_cameras, height, width, channels); "
+                         f"found shape {shape}")
+    if shape[0] != n:
+        raise ValueError(f"the rig has {n} cameras but {shape[0]} images were given")
+    for i, cam in enumerate(rig.cameras):
+        if shape[1:3] != (cam.height, cam.width):
+            raise ValueError(f"image {i} ({rig.names[i] if rig.names else i}) must be "
+                             f"{cam.height} x {cam.width} (height x width) for the rig; found "
+                             f"{shape[1]} x {shape[2]}")
+    if shape[3] not in (1, 3):
+        raise ValueError(f"images must have 1 or 3 channels; found {shape[3]}")
+    if masks is not None:
+        mshape = tuple(np.shape(masks))
+        if mshape != shape[:3]:
+            raise ValueError(f"masks must have shape {shape[:3]} (num_cameras, height, width) "
+                             f"to match the images; found {mshape}")
+
+
+def as_float_image(images) -> Array:
+    """Integer images (uint8, 0..255) become float32 in [0, 1]; float images are kept."""
+    images = jnp.asarray(images)
+    if jnp.issubdtype(images.dtype, jnp.integer):
+        return images.astype(jnp.float32) / 255.0
+    if not jnp.issubdtype(images.dtype, jnp.floating):
+        raise ValueError(f"images must be uint8 or float; found dtype {images.dtype}")
+    return images
+
+
 @functools.partial(jax.jit, static_argnames=("pano",))
 def surrogate_images(rig: Rig, images: Array, masks: Array | None = None,
                      pano: Panorama = Panorama.hemisphere(512, 2048)) -> tuple[Array, Array]:
     """All cameras: images (N, h, w, C) -> surrogates (N, H, W, C) and masks (N, H, W).
 
-    ``masks`` (N, h, w) overrides the rig's own masks; by default the rig's masks are used.
+    ``images`` are float (colours in [0, 1]) or uint8 (scaled to [0, 1]). ``masks`` (N, h, w),
+    1 = valid, overrides the rig's own masks; by default the rig's masks are used. Shapes are
+    checked against the rig's cameras when the function is traced (ValueError).
     """
-    per_cam = () if masks is None else (masks.astype(images.dtype),)
+    check_images(rig, images, masks)
+    images = as_float_image(images)
+    per_cam = () if masks is None else (jnp.asarray(masks).astype(images.dtype),)
 
     def one(cam, rot, trans, rig_mask, image, *mask):
         return surrogate_image(cam, image, mask[0] if mask else rig_mask, pano)

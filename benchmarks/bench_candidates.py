@@ -1,0 +1,89 @@
+"""Rig-aware GI candidate solve and gradient times, jitted, on the current backend.
+
+Times ``rig_gi_candidates`` (n = 8, 16, 32) on the 3-camera (paper-test2) and 4-camera
+(paper-test3) layouts after compilation, and the gradient of a scalar function of the list with
+respect to the camera translations. Prints a table and writes JSON (``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gijax.candidates import rig_gi_candidates
+from gijax.candidates.rig_aware import DEFAULT_PANO, _rig_gi_jit, as_float_rig
+from gijax.geometry.layouts import builtin_rig
+
+
+def _time(fn, repeats: int) -> tuple[float, float]:
+    """Median and minimum wall time of ``fn()`` (blocking), milliseconds."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times)), float(np.min(times))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="benchmarks/out/bench_candidates.json")
+    parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--x64", action="store_true", help="float64 (default float32)")
+    args = parser.parse_args(argv)
+    jax.config.update("jax_enable_x64", bool(args.x64))
+
+    rows = []
+    for name in ("paper-test2", "paper-test3"):
+        rig = as_float_rig(builtin_rig(name))
+        for n in (8, 16, 32):
+            solve = jax.jit(lambda r, n=n: _rig_gi_jit(r, 0.5, 100.0, None, n=n, pano=DEFAULT_PANO,
+                                                        measure="pixels", samples=4)[0])
+            t0 = time.perf_counter()
+            jax.block_until_ready(solve(rig))
+            compile_s = time.perf_counter() - t0
+            med, best = _time(lambda: solve(rig), args.repeats)
+
+            def loss(t, rig=rig, n=n):
+                return jnp.sum(jnp.log(rig_gi_candidates(rig.replace(translations=t), n)))
+
+            grad = jax.jit(jax.grad(loss))
+            t0 = time.perf_counter()
+            jax.block_until_ready(grad(rig.translations))
+            grad_compile_s = time.perf_counter() - t0
+            gmed, gbest = _time(lambda: grad(rig.translations), args.repeats)
+            rows.append(dict(rig=name, cameras=rig.num_cameras, n=n, solve_ms=med,
+                             solve_min_ms=best, compile_s=compile_s, grad_ms=gmed,
+                             grad_min_ms=gbest, grad_compile_s=grad_compile_s))
+
+    dtype = "float64" if args.x64 else "float32"
+    rays = DEFAULT_PANO.height * DEFAULT_PANO.width
+    print(f"rig-aware GI solve, {rays} panorama rays, {dtype}, backend {jax.default_backend()}, "
+          f"median of {args.repeats}")
+    print(f"{'rig':12s} {'cams':>4s} {'n':>3s} {'solve ms':>9s} {'min ms':>7s} {'grad ms':>8s} "
+          f"{'min ms':>7s} {'compile s':>9s}")
+    for r in rows:
+        print(f"{r['rig']:12s} {r['cameras']:4d} {r['n']:3d} {r['solve_ms']:9.3f} "
+              f"{r['solve_min_ms']:7.3f} {r['grad_ms']:8.3f} {r['grad_min_ms']:7.3f} "
+              f"{r['compile_s']:9.2f}")
+    out = dict(benchmark="candidates", dtype=dtype, backend=jax.default_backend(),
+               panorama_rays=rays, repeats=args.repeats, rows=rows)
+    folder = os.path.dirname(os.path.abspath(args.out))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".json", dir=folder)
+    with os.fdopen(fd, "w") as fh:
+        json.dump(out, fh, indent=2)
+    os.replace(tmp, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,332 @@
+"""The on-disk dataset format: layout, JSON documents, rig serialisation, CSV file lists.
+
+Layout (see docs/data.md for an example tree)::
+
+    ROOT/
+      manifest.json        format name and version, the other documents, the trajectories
+      metadata.json        cameras (model, intrinsics, size, fov, rig mask file), panorama,
+                           distance range, sky value, occluder, encodings
+      frame_graph.json     camera-to-rig poses of every camera and of the panorama centre
+      rig/rig.yaml         the same rig as a gijax rig file (gijax.io.rigfile.load_rig reads it)
+      rig/rig_<cam>_mask.png  the rig's static self-occlusion masks (when the rig has them)
+      traj_0000/files.csv  one row per frame, one column per file (paths relative to traj_0000/)
+      traj_0000/<cam>/rgb/000000.png, <cam>/distance/000000.png, <cam>/mask/000000.png
+      traj_0000/pano/distance/000000.png
+
+The rig round-trips bit-exactly (every float32 leaf is written as the shortest decimal that
+reads back to the same float32). Trajectory CSVs are the commit record: a sample exists once
+its row is in a CSV listed by the manifest, and both are replaced atomically after all of the
+sample's files exist.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from gijax.data import pngio
+from gijax.geometry import cameras as cam_lib
+from gijax.geometry.occluder import Cylinder
+from gijax.geometry.panorama import Panorama
+from gijax.geometry.rig import Rig
+
+FORMAT_NAME = "gijax-multi-fisheye"
+FORMAT_VERSION = 1
+MANIFEST = "manifest.json"
+METADATA = "metadata.json"
+FRAME_GRAPH = "frame_graph.json"
+FILE_LIST = "files.csv"
+RIG_FOLDER = "rig"
+RIG_FILE = f"{RIG_FOLDER}/rig.yaml"
+PANO_FRAME = "pano"
+RIG_FRAME = "rig"
+DEFAULT_TRAJECTORY_SIZE = 1000
+DEFAULT_DISTANCE_RANGE = (0.5, 100.0)
+SKY_DISTANCE = 1e6
+# The column kinds of a file list, per camera; the panorama has one distance column.
+CAMERA_KINDS = ("rgb", "distance", "mask")
+
+
+# ---------------------------------------------------------------------------- JSON helpers
+
+def load_json(path: str | os.PathLike, what: str) -> dict:
+    """Read a JSON object; FileNotFoundError / ValueError name the file and the position."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"missing {what} {path}") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"malformed {what} {path}: {exc.msg} at line {exc.lineno} column "
+                         f"{exc.colno}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"malformed {what} {path}: expected a JSON object, found "
+                         f"{type(doc).__name__}")
+    return doc
+
+
+def require(doc: dict, key: str, path, kind: type | tuple = object) -> Any:
+    """``doc[key]``, raising a ValueError naming the file and the field when absent or mistyped."""
+    if key not in doc:
+        raise ValueError(f"{path}: missing field {key!r}")
+    value = doc[key]
+    if not isinstance(value, kind):
+        names = kind.__name__ if isinstance(kind, type) else "/".join(k.__name__ for k in kind)
+        raise ValueError(f"{path}: field {key!r} must be {names}; found {type(value).__name__}")
+    return value
+
+
+def dumps(doc: dict) -> bytes:
+    """Deterministic JSON bytes (so a resumed run rewrites identical documents)."""
+    return (json.dumps(doc, indent=2, sort_keys=False) + "\n").encode("utf-8")
+
+
+# ---------------------------------------------------------------------------- rig <-> JSON
+
+def _floats(a) -> Any:
+    """float32 (or float64) array -> nested lists of Python floats, exact."""
+    return np.asarray(a, np.float64).tolist()
+
+
+def camera_to_json(cam, name: str, mask_file: str | None) -> dict:
+    return {
+        "name": name,
+        "model": cam.MODEL,
+        "width": int(cam.width),
+        "height": int(cam.height),
+        "intrinsics": cam_lib.camera_params(cam),
+        "fov_rad": float(cam.fov),
+        "fov_deg": math.degrees(float(cam.fov)),
+        "mask": mask_file,
+    }
+
+
+def camera_from_json(doc: dict, path) -> Any:
+    model = require(doc, "model", path, str)
+    if model not in cam_lib.CAMERA_MODELS:
+        raise ValueError(f"{path}: camera {doc.get('name')!r} has unknown model {model!r}; "
+                         f"expected one of {sorted(cam_lib.CAMERA_MODELS)}")
+    cls = cam_lib.CAMERA_MODELS[model]
+    intr = require(doc, "intrinsics", path, dict)
+    missing = [k for k in cls.PARAMS if k not in intr]
+    if missing:
+        raise ValueError(f"{path}: camera {doc.get('name')!r} is missing intrinsics {missing}")
+    fov = doc["fov_rad"] if "fov_rad" in doc else math.radians(require(doc, "fov_deg", path,
+                                                                         (int, float)))
+    leaves = {k: jnp.asarray(intr[k], jnp.float32) for k in cls.PARAMS}
+    return cls(**leaves, fov=jnp.asarray(fov, jnp.float32),
+               width=int(require(doc, "width", path, int)),
+               height=int(require(doc, "height", path, int)))
+
+
+def metadata_doc(rig: Rig, pano: Panorama, distance_range=DEFAULT_DISTANCE_RANGE,
+                 sky_distance: float = SKY_DISTANCE) -> dict:
+    """metadata.json for a rig and a ground-truth panorama."""
+    names = list(rig.names)
+    # Mask file names are the ones gijax.io.rigfile.save_rig writes beside rig/rig.yaml.
+    cams = [camera_to_json(c, n, None if m is None else f"{RIG_FOLDER}/rig_{n}_mask.png")
+            for c, n, m in zip(rig.cameras, names, rig.masks)]
+    occ = None
+    if rig.occluder is not None:
+        occ = {"type": "cylinder", **{f: float(getattr(rig.occluder, f))
+                                      for f in ("x", "y", "radius", "z_min", "z_max")}}
+    return {
+        "cameras": cams,
+        "panorama": {"height": pano.height, "width": pano.width, "lat_min_rad": pano.lat_min,
+                     "lat_max_rad": pano.lat_max, "lat_min_deg": math.degrees(pano.lat_min),
+                     "lat_max_deg": math.degrees(pano.lat_max)},
+        "distance_range": [float(distance_range[0]), float(distance_range[1])],
+        "sky_distance": float(sky_distance),
+        "occluder": occ,
+        "encodings": {
+            "rgb": "8-bit 3-channel PNG, RGB (stored in OpenCV's BGR channel order)",
+            "distance": "float32 metres, little-endian bytes packed into an 8-bit 4-channel PNG",
+            "mask": "8-bit 1-channel PNG, 255 = valid (sees the world), 0 = invalid",
+        },
+    }
+
+
+def frame_graph_doc(rig: Rig) -> dict:
+    """frame_graph.json: each frame's pose in its parent (child-to-parent, metres)."""
+    frames = {RIG_FRAME: {"parent": None}}
+    for i, name in enumerate(rig.names):
+        frames[name] = {"parent": RIG_FRAME, "rotation": _floats(rig.rotations[i]),
+                        "translation": _floats(rig.translations[i])}
+    frames[PANO_FRAME] = {"parent": RIG_FRAME, "rotation": np.eye(3).tolist(),
+                          "translation": _floats(rig.reference)}
+    return {"convention": "child-to-parent: p_parent = R @ p_child + t; camera frame x right, "
+                          "y down, z forward; metres",
+            "frames": frames}
+
+
+def check_names(names) -> None:
+    if len(set(names)) != len(names):
+        raise ValueError(f"camera names must be unique; found {list(names)}")
+    for n in names:
+        if not n or n in (RIG_FRAME, PANO_FRAME) or any(ch in n for ch in "/\\,. "):
+            raise ValueError(f"camera name {n!r} cannot name files: use letters, digits, '_' "
+                             f"or '-', and not {RIG_FRAME!r} or {PANO_FRAME!r}")
+
+
+def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
+    """Rebuild the Rig from metadata.json, frame_graph.json and the rig mask PNGs."""
+    meta_path, graph_path = root / METADATA, root / FRAME_GRAPH
+    cam_docs = require(meta, "cameras", meta_path, list)
+    if not cam_docs:
+        raise ValueError(f"{meta_path}: field 'cameras' is empty")
+    frames = require(graph, "frames", graph_path, dict)
+    cams, rots, trans, masks, names = [], [], [], [], []
+    for k, doc in enumerate(cam_docs):
+        where = f"{meta_path} cameras[{k}]"
+        name = require(doc, "name", where, str)
+        cam = camera_from_json(doc, where)
+        if name not in frames:
+            raise ValueError(f"{graph_path}: no frame for camera {name!r}")
+        pose = frames[name]
+        rot = np.asarray(require(pose, "rotation", f"{graph_path} frame {name!r}", list),
+                         np.float32)
+        t = np.asarray(require(pose, "translation", f"{graph_path} frame {name!r}", list),
+                       np.float32)
+        if rot.shape != (3, 3) or t.shape != (3,):
+            raise ValueError(f"{graph_path} frame {name!r}: rotation must be 3x3 and "
+                             f"translation 3; found {rot.shape} and {t.shape}")
+        mask_file = doc.get("mask")
+        mask = None
+        if mask_file:
+            mask = jnp.asarray(pngio.read_mask(root / mask_file, (cam.height, cam.width),
+                                               f"rig mask of camera {name!r}"), jnp.float32)
+        cams.append(cam)
+        rots.append(rot)
+        trans.append(t)
+        masks.append(mask)
+        names.append(name)
+    check_names(names)
+    pano_pose = frames.get(PANO_FRAME, {"translation": [0.0, 0.0, 0.0]})
+    reference = np.asarray(pano_pose.get("translation", [0.0, 0.0, 0.0]), np.float32)
+    occ_doc = meta.get("occluder")
+    occ = None
+    if occ_doc:
+        occ = Cylinder(*(jnp.asarray(require(occ_doc, f, f"{meta_path} occluder", (int, float)),
+                                     jnp.float32)
+                         for f in ("x", "y", "radius", "z_min", "z_max")))
+    return Rig(tuple(cams), jnp.asarray(np.stack(rots)), jnp.asarray(np.stack(trans)),
+               jnp.asarray(reference), tuple(masks), occ, tuple(names))
+
+
+def pano_from_metadata(meta: dict, path) -> Panorama:
+    doc = require(meta, "panorama", path, dict)
+    return Panorama(int(require(doc, "height", path, int)), int(require(doc, "width", path, int)),
+                    float(doc.get("lat_min_rad", -math.pi / 2)), float(doc.get("lat_max_rad", 0.0)))
+
+
+# ---------------------------------------------------------------------------- file lists
+
+def file_columns(names) -> list[str]:
+    """CSV header: frame, seed, <cam>_rgb, <cam>_distance, <cam>_mask per camera, pano_distance."""
+    cols = ["frame", "seed"]
+    for n in names:
+        cols += [f"{n}_{kind}" for kind in CAMERA_KINDS]
+    return cols + [f"{PANO_FRAME}_distance"]
+
+
+def sample_files(names, frame: int) -> dict[str, str]:
+    """Column -> path relative to the trajectory folder for one frame."""
+    files = {f"{n}_{kind}": f"{n}/{kind}/{frame:06d}.png" for n in names for kind in CAMERA_KINDS}
+    files[f"{PANO_FRAME}_distance"] = f"{PANO_FRAME}/distance/{frame:06d}.png"
+    return files
+
+
+def trajectory_name(index: int) -> str:
+    return f"traj_{index:04d}"
+
+
+def read_file_list(path: Path, names) -> list[dict[str, str]]:
+    """Parse a trajectory CSV; every row must have every required column filled.
+
+    ``<cam>_mask`` and ``seed`` columns are optional (data without per-frame masks use the
+    rig's masks). Errors name the file and the line.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"missing file list {path}") from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = next(reader)
+    except StopIteration:
+        raise ValueError(f"{path}: empty file list (no header row)") from None
+    required = ["frame"] + [f"{n}_{k}" for n in names for k in ("rgb", "distance")] + \
+        [f"{PANO_FRAME}_distance"]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise ValueError(f"{path} line 1: header lacks column(s) {missing}; found {header}")
+    rows = []
+    for line_no, fields in enumerate(reader, start=2):
+        if not fields:
+            continue
+        if len(fields) != len(header):
+            raise ValueError(f"{path} line {line_no}: expected {len(header)} fields, found "
+                             f"{len(fields)}")
+        row = dict(zip(header, fields))
+        for c in required:
+            if not row[c]:
+                raise ValueError(f"{path} line {line_no}: empty field {c!r}")
+        try:
+            int(row["frame"])
+            if row.get("seed"):
+                int(row["seed"])
+        except ValueError:
+            raise ValueError(f"{path} line {line_no}: frame and seed must be integers; found "
+                             f"frame={row['frame']!r} seed={row.get('seed')!r}") from None
+        row["_line"] = str(line_no)
+        rows.append(row)
+    return rows
+
+
+def file_list_bytes(names, rows: list[dict[str, str]]) -> bytes:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    cols = file_columns(names)
+    writer.writerow(cols)
+    for row in rows:
+        writer.writerow([row.get(c, "") for c in cols])
+    return buf.getvalue().encode("utf-8")
+
+
+def manifest_doc(trajectories: list[str], trajectory_size: int, generator: dict | None) -> dict:
+    return {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "metadata": METADATA,
+        "frame_graph": FRAME_GRAPH,
+        "rig": RIG_FILE,
+        "trajectory_size": int(trajectory_size),
+        "trajectories": [{"name": t, "file_list": f"{t}/{FILE_LIST}"} for t in trajectories],
+        "generator": generator,
+    }
+
+
+def read_manifest(root: Path) -> dict:
+    """Load and check manifest.json (fields and types), naming the file on every error."""
+    path = root / MANIFEST
+    doc = load_json(path, "manifest")
+    trajs = require(doc, "trajectories", path, list)
+    for k, t in enumerate(trajs):
+        if not isinstance(t, dict):
+            raise ValueError(f"{path}: trajectories[{k}] must be an object; found "
+                             f"{type(t).__name__}")
+        require(t, "name", f"{path} trajectories[{k}]", str)
+        require(t, "file_list", f"{path} trajectories[{k}]", str)
+    require(doc, "metadata", path, str)
+    require(doc, "frame_graph", path, str)
+    return doc

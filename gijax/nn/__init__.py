@@ -1,0 +1,34 @@
+"""Flax NNX modules of the stereo network (channels-last): feature extractors (plain and
+spherical), cost-volume builders (concat and masked variance), the 3-D U-Net, the soft-argmax
+regressor, and the model presets."""
+
+from gijax.nn.build import NetworkParts, count_parameters, make_cost_volume, make_unet
+from gijax.nn.cost_volume import ConcatCostVolume, VarianceCostVolume, masked_variance
+from gijax.nn.features import FeatureExtractor
+from gijax.nn.layers import param_count
+from gijax.nn.presets import PRESETS, REFERENCE_PARAM_COUNTS, ModelConfig, get_preset
+from gijax.nn.regressor import regress
+from gijax.nn.spherical import SphericalConv, tangent_offsets
+from gijax.nn.unet3d import UNet3D
+from gijax.nn.upsample import upsample2
+
+__all__ = [
+    "PRESETS",
+    "REFERENCE_PARAM_COUNTS",
+    "ConcatCostVolume",
+    "FeatureExtractor",
+    "ModelConfig",
+    "NetworkParts",
+    "SphericalConv",
+    "UNet3D",
+    "VarianceCostVolume",
+    "count_parameters",
+    "get_preset",
+    "make_cost_volume",
+    "make_unet",
+    "masked_variance",
+    "param_count",
+    "regress",
+    "tangent_offsets",
+    "upsample2",
+]

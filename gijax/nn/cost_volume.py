@@ -1,0 +1,85 @@
+"""Cost-volume builders: fuse swept per-camera features into one volume per candidate and cell.
+
+Input: ``features`` (B, Ncam, D, h, w, C), each camera's feature map sampled at the projection
+of every (candidate, cell) point, and ``valid`` (B, Ncam, D, h, w) (bool or float, > 0 = the
+camera sees that point: inside its hemisphere, sampled image mask set). Output
+(B, D, h, w, out_channels), each builder ending with a 3x3x3 conv + BN + LeakyReLU.
+
+* :class:`ConcatCostVolume`: stacks the cameras' channels (camera-major: camera 0's C channels
+  first), Ncam x C channels; the camera count is fixed at construction and masks are ignored
+  (the swept features are already zero where a camera does not see the point).
+* :class:`VarianceCostVolume`: per channel, the variance over the valid cameras,
+  ``sum_v (f - mean)^2 / count`` (not the standard deviation), 0 where fewer than 2 cameras are
+  valid. Independent of the camera order and count, so one set of weights runs any rig.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import nnx
+
+from gijax.nn.layers import ConvBN
+
+Array = jax.Array
+
+
+def _check(features: Array, valid: Array, who: str) -> None:
+    if features.ndim != 6:
+        raise ValueError(f"{who}: features must be (B, Ncam, D, h, w, C), got {features.shape}")
+    if valid.shape != features.shape[:5]:
+        raise ValueError(
+            f"{who}: valid must be (B, Ncam, D, h, w) = {features.shape[:5]}, got {valid.shape}"
+        )
+
+
+def masked_variance(features: Array, valid: Array) -> Array:
+    """(B, Ncam, D, h, w, C), (B, Ncam, D, h, w) -> (B, D, h, w, C) variance over valid cameras.
+
+    Divisions are by max(count, 1) and cells with fewer than 2 valid cameras are replaced by 0
+    with a select, so values and gradients are finite everywhere.
+    """
+    v = (valid > 0).astype(features.dtype)[..., None]  # (B, Ncam, D, h, w, 1)
+    count = jnp.sum(v, axis=1)
+    safe = jnp.maximum(count, 1.0)
+    mean = jnp.sum(v * features, axis=1) / safe
+    var = jnp.sum(v * (features - mean[:, None]) ** 2, axis=1) / safe
+    return jnp.where(count >= 2.0, var, 0.0)
+
+
+class ConcatCostVolume(nnx.Module):
+    """Concatenate the cameras' features -> 3x3x3 conv (Ncam C -> out) + BN + LeakyReLU."""
+
+    def __init__(self, num_cameras: int, channels: int, out_channels: int, rngs: nnx.Rngs):
+        self.num_cameras = num_cameras
+        self.channels = channels
+        self.fuse = ConvBN(num_cameras * channels, out_channels, 3, 3, rngs)
+
+    def __call__(self, features: Array, valid: Array) -> Array:
+        _check(features, valid, "ConcatCostVolume")
+        b, n, d, h, w, c = features.shape
+        if n != self.num_cameras or c != self.channels:
+            raise ValueError(
+                f"ConcatCostVolume built for {self.num_cameras} cameras x {self.channels} "
+                f"channels, got {n} cameras x {c} channels (a concat model's camera count is "
+                "fixed; use a variance model for other rigs)"
+            )
+        stacked = jnp.moveaxis(features, 1, 4).reshape(b, d, h, w, n * c)
+        return self.fuse(stacked)
+
+
+class VarianceCostVolume(nnx.Module):
+    """Masked variance over the valid cameras -> 3x3x3 conv (C -> out) + BN + LeakyReLU."""
+
+    def __init__(self, channels: int, out_channels: int, rngs: nnx.Rngs):
+        self.channels = channels
+        self.fuse = ConvBN(channels, out_channels, 3, 3, rngs)
+
+    def __call__(self, features: Array, valid: Array) -> Array:
+        _check(features, valid, "VarianceCostVolume")
+        if features.shape[-1] != self.channels:
+            raise ValueError(
+                f"VarianceCostVolume built for {self.channels} channels, "
+                f"got {features.shape[-1]}"
+            )
+        return self.fuse(masked_variance(features, valid))

@@ -1,0 +1,183 @@
+"""Model configurations by name: the paper's variants at their published size and CPU-scale twins.
+
+Paper size (REFERENCE section 4): 512 x 2048 surrogate images per camera, features at stride 4
+(128 x 512, 16 channels), an 80 x 320 cost volume over the rig hemisphere, a 160 x 640 output.
+
+=============  ==========  ======  =========  ===========  ===========  =======================
+name           candidates  loss    features   cost volume  U-Net        parameters (REFERENCE)
+=============  ==========  ======  =========  ===========  ===========  =======================
+E8 / G8        8 EV / GI   L1      plain      concat 48    in48 / f96   36.7 M
+E16 / G16      16 EV / GI  L1      plain      concat 48    in48 / f96   36.7 M
+G16V           16 GI       volume  plain      concat 48    in48 / f96   36.7 M (as in the paper)
+G16V-released  16 GI       volume  plain      variance 16  in16 / f32   4.15 M (released ONNX)
+G16VV          16 GI       volume  spherical  variance 16  in16 / f96   36.5 M
+=============  ==========  ======  =========  ===========  ===========  =======================
+
+The ``-cpu`` presets keep every structural choice (candidate count and kind, loss, feature kind,
+cost-volume kind, camera count, mask augmentation) and shrink the sizes so that a model trains on
+a laptop CPU in minutes: raw fisheye images scaled by 0.25, 128 x 512 surrogates, 32 x 128
+features with 8 channels and (2, 3) residual blocks, a 16 x 64 cost volume, a 32 x 128 output.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+_CANDIDATE_KINDS = ("ev", "gi")
+_LOSSES = ("smooth_l1", "volume")
+_FEATURES = ("plain", "spherical")
+_COST_VOLUMES = ("concat", "variance")
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelConfig:
+    """Everything that fixes a network's structure and sizes (hashable, usable as a jit static).
+
+    Sizes are (height, width) in pixels. ``surrogate_hw`` is the per-camera hemisphere image fed
+    to the feature extractor (features come out at a quarter of it), ``cost_hw`` the rig
+    hemisphere grid of the cost volume and ``output_hw`` the regressed panorama (twice
+    ``cost_hw``). ``image_scale`` is the factor applied to the raw fisheye images and the rig
+    intrinsics before resampling (1.0 at paper size). Distances ``d_min``/``d_max`` are metres.
+    ``unet_in`` is the number of channels of the cost volume, which the U-Net consumes: the
+    camera count times ``feature_channels`` for concat, ``feature_channels`` for variance.
+    """
+
+    name: str
+    num_candidates: int
+    candidates: str
+    loss: str
+    features: str
+    cost_volume: str
+    num_cameras: int = 3
+    feature_channels: int = 16
+    feature_blocks: tuple[int, int] = (5, 10)
+    unet_in: int = 48
+    unet_base: int = 96
+    surrogate_hw: tuple[int, int] = (512, 2048)
+    cost_hw: tuple[int, int] = (80, 320)
+    output_hw: tuple[int, int] = (160, 640)
+    image_scale: float = 1.0
+    mask_augmentation: bool = False
+    d_min: float = 0.5
+    d_max: float = 100.0
+
+    def __post_init__(self) -> None:
+        def fail(field: str, expected: str, found) -> None:
+            raise ValueError(
+                f"ModelConfig {self.name!r}: field {field!r} expected {expected}, found {found!r}"
+            )
+
+        for field, allowed in (
+            ("candidates", _CANDIDATE_KINDS),
+            ("loss", _LOSSES),
+            ("features", _FEATURES),
+            ("cost_volume", _COST_VOLUMES),
+        ):
+            if getattr(self, field) not in allowed:
+                fail(field, f"one of {allowed}", getattr(self, field))
+        # The U-Net halves the candidate axis and both spatial axes three times.
+        if self.num_candidates < 8 or self.num_candidates % 8:
+            fail("num_candidates", "a positive multiple of 8 (the U-Net halves it 3 times)",
+                 self.num_candidates)
+        for field in ("cost_hw", "surrogate_hw", "output_hw"):
+            hw = getattr(self, field)
+            if len(hw) != 2 or any(int(s) != s or s <= 0 for s in hw):
+                fail(field, "two positive integers (height, width)", hw)
+        if any(s % 8 for s in self.cost_hw):
+            fail("cost_hw", "both sides divisible by 8 (the U-Net halves them 3 times)",
+                 self.cost_hw)
+        if any(s % 4 for s in self.surrogate_hw):
+            fail("surrogate_hw", "both sides divisible by 4 (features are at stride 4)",
+                 self.surrogate_hw)
+        if tuple(self.output_hw) != (2 * self.cost_hw[0], 2 * self.cost_hw[1]):
+            fail("output_hw", f"twice cost_hw = {(2 * self.cost_hw[0], 2 * self.cost_hw[1])}",
+                 self.output_hw)
+        if len(self.feature_blocks) != 2 or any(b < 0 for b in self.feature_blocks):
+            fail("feature_blocks", "two non-negative block counts", self.feature_blocks)
+        for field in ("num_cameras", "feature_channels", "unet_base"):
+            if getattr(self, field) < 1:
+                fail(field, "a positive integer", getattr(self, field))
+        expected_in = (
+            self.num_cameras * self.feature_channels
+            if self.cost_volume == "concat"
+            else self.feature_channels
+        )
+        if self.unet_in != expected_in:
+            fail("unet_in", f"{expected_in} for a {self.cost_volume} cost volume", self.unet_in)
+        if self.cost_volume == "variance" and self.num_cameras < 2:
+            fail("num_cameras", "at least 2 for a variance cost volume", self.num_cameras)
+        if not 0.0 < self.d_min < self.d_max:
+            fail("d_min/d_max", "0 < d_min < d_max", (self.d_min, self.d_max))
+        if not self.image_scale > 0:
+            fail("image_scale", "a positive factor", self.image_scale)
+
+    @property
+    def feature_hw(self) -> tuple[int, int]:
+        """(height, width) of the feature maps: a quarter of the surrogate image."""
+        return (self.surrogate_hw[0] // 4, self.surrogate_hw[1] // 4)
+
+    @property
+    def cost_volume_shape(self) -> tuple[int, int, int, int]:
+        """(D, h, w, channels) of the cost volume of one sample."""
+        return (self.num_candidates, *self.cost_hw, self.unet_in)
+
+
+def _paper(name, n, cand, loss, features="plain", cost="concat", unet_base=96, mask_aug=False):
+    unet_in = 48 if cost == "concat" else 16
+    return ModelConfig(
+        name=name, num_candidates=n, candidates=cand, loss=loss, features=features,
+        cost_volume=cost, unet_in=unet_in, unet_base=unet_base, mask_augmentation=mask_aug,
+    )
+
+
+def _cpu(paper: ModelConfig, unet_base: int) -> ModelConfig:
+    channels = 8
+    unet_in = paper.num_cameras * channels if paper.cost_volume == "concat" else channels
+    return dataclasses.replace(
+        paper,
+        name=paper.name + "-cpu",
+        feature_channels=channels,
+        feature_blocks=(2, 3),
+        unet_in=unet_in,
+        unet_base=unet_base,
+        surrogate_hw=(128, 512),
+        cost_hw=(16, 64),
+        output_hw=(32, 128),
+        image_scale=0.25,
+    )
+
+
+_PAPER = [
+    _paper("E8", 8, "ev", "smooth_l1"),
+    _paper("G8", 8, "gi", "smooth_l1"),
+    _paper("E16", 16, "ev", "smooth_l1"),
+    _paper("G16", 16, "gi", "smooth_l1"),
+    _paper("G16V", 16, "gi", "volume"),
+    _paper("G16V-released", 16, "gi", "volume", cost="variance", unet_base=32, mask_aug=True),
+    _paper("G16VV", 16, "gi", "volume", features="spherical", cost="variance", unet_base=96,
+           mask_aug=True),
+]
+
+# CPU U-Net widths keep the paper's ordering: the in16/f32 released variance model is the
+# narrowest, G16VV's U-Net is wider than its input, concat models get the camera-stacked input.
+_CPU_BASE = {"G16V-released": 16, "G16VV": 24}
+
+PRESETS: dict[str, ModelConfig] = {c.name: c for c in _PAPER}
+PRESETS.update({c.name + "-cpu": _cpu(c, _CPU_BASE.get(c.name, 16)) for c in _PAPER})
+
+# Parameter counts of the paper-size networks as stated in REFERENCE section 4 (trainable
+# parameters of feature extractor, cost-volume conv and U-Net).
+REFERENCE_PARAM_COUNTS: dict[str, float] = {
+    "E8": 36.7e6, "G8": 36.7e6, "E16": 36.7e6, "G16": 36.7e6, "G16V": 36.7e6,
+    "G16V-released": 4.15e6, "G16VV": 36.5e6,
+}
+
+
+def get_preset(name: str) -> ModelConfig:
+    """The :class:`ModelConfig` called ``name`` (e.g. 'G16VV', 'G8-cpu')."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown model preset {name!r}; valid names: {', '.join(PRESETS)}"
+        ) from None

@@ -1,0 +1,166 @@
+"""Spherical 3x3 convolution on an equirectangular feature map (fixed tangent-plane offsets).
+
+An equirectangular map stretches the sphere in longitude by 1 / cos(lat): near the pole a plain
+3x3 kernel covers a sliver of solid angle. The spherical conv instead samples its 9 taps where a
+3x3 grid laid on the plane tangent to the sphere at the output pixel lands, so the kernel covers
+the same solid angle everywhere (a deformable conv whose offsets are fixed and precomputed).
+
+Derivation of the taps
+----------------------
+Feature-map pixel (col c, row r) of an H x W map over latitudes [lat0, lat1] has its centre at
+``lon = -pi + (c + 0.5) dlon`` and ``lat = lat0 + (r + 0.5) dlat`` with ``dlon = 2 pi / W``,
+``dlat = (lat1 - lat0) / H``. Write the centre as the unit vector ``P = (cos lat cos lon,
+cos lat sin lon, sin lat)`` with local east ``e = (-sin lon, cos lon, 0)`` and north
+(increasing latitude, i.e. increasing row) ``n = (-sin lat cos lon, -sin lat sin lon, cos lat)``.
+The plane tangent at P (at unit distance from the centre) holds the 3x3 grid
+
+    q(i, j) = P + j tan(dlon) e + i tan(dlat) n,   i, j in {-1, 0, 1}
+
+(i: row step, j: column step); its scale makes the four edge taps at the equator land exactly
+one pixel away. The tap direction is q / |q| (the inverse gnomonic projection), so
+
+    lat_ij = asin(q_z / |q|),   lon_ij = atan2(q . e', q . P')
+
+where the longitude is measured about the polar axis. Taking lon = 0 without loss of generality
+(the map is invariant to rotation about the pole, so offsets depend on the row only):
+``q = (cos lat - i tan(dlat) sin lat, j tan(dlon), sin lat + i tan(dlat) cos lat)``, and the
+offsets in pixels are ``d_row = (lat_ij - lat) / dlat``, ``d_col = lon_ij / dlon``.
+
+* At the equator (lat = 0) the edge taps are exactly one pixel away and the corner taps
+  ``atan(tan d / sqrt(1 + tan^2 d))``-style close to it: the plain 3x3 grid up to O(d^3).
+* For the side taps (i = 0): ``lon = atan(tan(dlon) / cos(lat))`` and
+  ``lat' = asin(sin(lat) cos(dlon))``: the kernel widens in longitude by about 1 / cos(lat).
+* Near the pole a tap with i = -1 crosses the pole: its latitude stays above -90 deg and its
+  longitude jumps by about 180 deg, which is where the neighbouring pixel really lies.
+
+Sampling: bilinear, longitude wrapping around (column indices modulo W); a row coordinate above
+the first row centre (only within half a pixel of the pole) is clamped to row 0, and rows past
+the last one (beyond the hemisphere's horizon, where the surrogate image is empty) read zeros,
+as the zero padding of a plain conv would. The 9 sampled vectors are stacked tap-major
+(tap k = 3 (i + 1) + (j + 1), then channel) and mixed by one (9 C) -> C_out matrix, the layout
+of a 3x3 conv kernel (3, 3, C, C_out) reshaped, so parameter counts equal the plain conv's.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+
+from gijax.nn.layers import batch_norm, kernel_init, leaky_relu
+
+Array = jax.Array
+
+
+def tangent_offsets(height: int, width: int, lat_min: float = -math.pi / 2,
+                    lat_max: float = 0.0) -> np.ndarray:
+    """(H, 9, 2) float64 tap offsets (d_row, d_col) in pixels for every row of an H x W map.
+
+    Tap k = 3 (i + 1) + (j + 1) for row step i and column step j in {-1, 0, 1}. Column offsets
+    are wrapped into [-W/2, W/2).
+    """
+    dlat = (lat_max - lat_min) / height
+    dlon = 2 * math.pi / width
+    lat = lat_min + (np.arange(height) + 0.5) * dlat  # (H,)
+    i, j = np.meshgrid([-1.0, 0.0, 1.0], [-1.0, 0.0, 1.0], indexing="ij")
+    i = i.reshape(1, 9)
+    j = j.reshape(1, 9)
+    s = np.sin(lat)[:, None]
+    c = np.cos(lat)[:, None]
+    ty, tx = math.tan(dlat), math.tan(dlon)
+    # Tangent-plane point q = P + j tx e + i ty n for the pixel at longitude 0.
+    qx = c - i * ty * s
+    qy = j * tx * np.ones_like(c)
+    qz = s + i * ty * c
+    norm = np.sqrt(qx**2 + qy**2 + qz**2)
+    tap_lat = np.arcsin(np.clip(qz / norm, -1.0, 1.0))
+    tap_lon = np.arctan2(qy, qx)
+    d_row = (tap_lat - lat[:, None]) / dlat
+    d_col = tap_lon / dlon
+    d_col = (d_col + width / 2) % width - width / 2
+    return np.stack([d_row, d_col], axis=-1)
+
+
+def sampling_tables(offsets: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gather indices and weights for bilinear sampling at per-row tap offsets.
+
+    ``offsets`` (H, K, 2) = (d_row, d_col) pixels. Returns ``index`` (4, H, W, K) int32 flat
+    indices ``row * W + col`` into an (H, W) map and ``weight`` (4, H, 1, K) float32 for the four
+    neighbours (row0/col0, row0/col1, row1/col0, row1/col1). Neighbours in rows beyond the last
+    one get weight 0; rows above row 0 are clamped to row 0; columns wrap.
+    """
+    height, n_taps = offsets.shape[0], offsets.shape[1]
+    rows = np.arange(height, dtype=np.float64)[:, None] + offsets[..., 0]  # (H, K)
+    rows = np.maximum(rows, 0.0)
+    r0 = np.floor(rows)
+    fr = rows - r0
+    r0 = r0.astype(np.int64)
+    r1 = r0 + 1
+    dc = offsets[..., 1]
+    c_shift = np.floor(dc)
+    fc = dc - c_shift
+    c_shift = c_shift.astype(np.int64)
+    cols = np.arange(width, dtype=np.int64)
+    index = np.zeros((4, height, width, n_taps), np.int32)
+    weight = np.zeros((4, height, 1, n_taps), np.float32)
+    for n, (rr, dcol, wr, wc) in enumerate(
+        [(r0, 0, 1 - fr, 1 - fc), (r0, 1, 1 - fr, fc), (r1, 0, fr, 1 - fc), (r1, 1, fr, fc)]
+    ):
+        inside = rr <= height - 1
+        rr_c = np.minimum(rr, height - 1)
+        col = (cols[None, :, None] + c_shift[:, None, :] + dcol) % width  # (H, W, K)
+        index[n] = (rr_c[:, None, :] * width + col).astype(np.int32)
+        weight[n, :, 0, :] = np.where(inside, wr * wc, 0.0)
+    return index, weight
+
+
+def gather_taps(x: Array, index: Array, weight: Array) -> Array:
+    """Bilinear taps of ``x`` (B, H, W, C) from :func:`sampling_tables` -> (B, H, W, K, C)."""
+    b, h, w, c = x.shape
+    k = index.shape[-1]
+    flat = x.reshape(b, h * w, c)
+    out = None
+    for n in range(4):
+        taps = jnp.take(flat, index[n].reshape(-1), axis=1).reshape(b, h, w, k, c)
+        term = taps * weight[n][None, ..., None].astype(x.dtype)
+        out = term if out is None else out + term
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _cached_tables(height: int, width: int, lat_min: float, lat_max: float):
+    return sampling_tables(tangent_offsets(height, width, lat_min, lat_max), width)
+
+
+class SphericalConv(nnx.Module):
+    """3x3 spherical conv (C_in -> C_out, no bias) + BatchNorm + LeakyReLU on a fixed map size.
+
+    ``__call__(x (B, H, W, C_in)) -> (B, H, W, C_out)``; H, W must equal the construction size.
+    The map covers latitudes [lat_min, lat_max] (radians; default the hemisphere -90..0 deg with
+    the pole at row 0) and the full longitude circle.
+    """
+
+    def __init__(self, in_ch: int, out_ch: int, height: int, width: int, rngs: nnx.Rngs,
+                 lat_min: float = -math.pi / 2, lat_max: float = 0.0):
+        self.height, self.width = height, width
+        self.lat_range = (float(lat_min), float(lat_max))
+        self.mix = nnx.Linear(9 * in_ch, out_ch, use_bias=False, kernel_init=kernel_init,
+                              rngs=rngs)
+        self.bn = batch_norm(out_ch, rngs)
+
+    def __call__(self, x: Array) -> Array:
+        if x.shape[1:3] != (self.height, self.width):
+            raise ValueError(
+                f"SphericalConv built for {self.height} x {self.width} feature maps, "
+                f"got input of shape {tuple(x.shape)}"
+            )
+        # The tables are compile-time constants (cached numpy), neither parameters nor state,
+        # so checkpoints hold only the weights.
+        index, weight = _cached_tables(self.height, self.width, *self.lat_range)
+        taps = gather_taps(x, jnp.asarray(index), jnp.asarray(weight))
+        b, h, w, k, c = taps.shape
+        return leaky_relu(self.bn(self.mix(taps.reshape(b, h, w, k * c))))

@@ -1,0 +1,161 @@
+"""Typed training configuration, saved as JSON in every run folder.
+
+A run folder holds ``config.json`` (this file's :class:`TrainConfig`, the resolved
+:class:`gijax.nn.presets.ModelConfig` and the training candidates), ``checkpoints/`` (periodic,
+keep-N), ``best/`` (the best by a validation metric), ``metrics.jsonl``, TensorBoard event files
+under ``tb/`` and sample predictions under ``samples/``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import Any, Optional
+
+from gijax.nn.presets import ModelConfig, get_preset
+
+CONFIG_FILE = "config.json"
+SCHEDULES = ("constant", "cosine", "warmup_cosine", "step")
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """How to train (the network itself is fixed by ``preset`` and ``model_overrides``).
+
+    Attributes:
+      preset: model preset name (``gijax.nn.presets.PRESETS``), e.g. 'G16VV-cpu'.
+      model_overrides: ModelConfig fields replaced on top of the preset (e.g. smaller sizes).
+      lr: peak learning rate of Adam (the paper: 1e-4).
+      schedule: 'constant', 'cosine' (decay to ``lr * end_lr_factor`` at ``steps``),
+        'warmup_cosine' (linear warm-up over ``warmup_steps``, then cosine) or 'step' (multiply
+        by ``decay_factor`` every ``decay_every`` steps).
+      clip_norm: clip the global gradient norm to this value (None: no clipping).
+      batch_size: global batch (all devices and processes together) per optimiser step.
+      grad_accum: split each batch into this many micro-batches whose gradients are averaged
+        before the single optimiser update (memory / batch trade-off).
+      steps: optimiser steps to train for.
+      seed: seeds the model initialisation and the data order.
+      bf16: compute the forward/backward pass in bfloat16 (parameters, optimiser and loss stay
+        float32); meant for GPUs.
+      val_every / ckpt_every / log_every: intervals in steps (0 disables validation /
+        periodic checkpoints).
+      keep: periodic checkpoints to keep; keep_best: also keep the best one by ``best_metric``
+        (a validation metric, lower is better unless ``best_mode='max'``).
+      val_batches: at most this many validation batches per validation (0: the whole set).
+      workers: loader worker threads; candidates: None for the preset's kind computed for the
+        training rig, or a list of distances in metres.
+      sample_images: prediction images written per validation.
+    """
+
+    preset: str = "G16VV-cpu"
+    model_overrides: dict = dataclasses.field(default_factory=dict)
+    lr: float = 1e-4
+    schedule: str = "constant"
+    warmup_steps: int = 0
+    end_lr_factor: float = 0.0
+    decay_every: int = 10000
+    decay_factor: float = 0.5
+    clip_norm: Optional[float] = None
+    batch_size: int = 2
+    grad_accum: int = 1
+    steps: int = 1000
+    seed: int = 0
+    bf16: bool = False
+    val_every: int = 500
+    ckpt_every: int = 100
+    log_every: int = 1
+    keep: int = 3
+    keep_best: bool = True
+    best_metric: str = "mae"
+    best_mode: str = "min"
+    val_batches: int = 0
+    workers: int = 2
+    candidates: Optional[list] = None
+    sample_images: int = 2
+
+    def __post_init__(self) -> None:
+        def fail(field, expected, found):
+            raise ValueError(f"TrainConfig field {field!r}: expected {expected}, found {found!r}")
+
+        if self.schedule not in SCHEDULES:
+            fail("schedule", f"one of {SCHEDULES}", self.schedule)
+        for field in ("batch_size", "grad_accum", "steps", "log_every", "keep"):
+            if int(getattr(self, field)) < 1:
+                fail(field, "a positive integer", getattr(self, field))
+        for field in ("val_every", "ckpt_every", "val_batches", "warmup_steps", "workers"):
+            if int(getattr(self, field)) < 0:
+                fail(field, "a non-negative integer", getattr(self, field))
+        if self.batch_size % self.grad_accum:
+            fail("grad_accum", f"a divisor of batch_size {self.batch_size}", self.grad_accum)
+        if not self.lr > 0:
+            fail("lr", "a positive number", self.lr)
+        if self.clip_norm is not None and not self.clip_norm > 0:
+            fail("clip_norm", "a positive number or null", self.clip_norm)
+        if self.best_mode not in ("min", "max"):
+            fail("best_mode", "'min' or 'max'", self.best_mode)
+        self.model_config()                       # unknown preset / bad override fails here
+
+    def model_config(self) -> ModelConfig:
+        """The preset with ``model_overrides`` applied."""
+        base = get_preset(self.preset)
+        unknown = set(self.model_overrides) - {f.name for f in dataclasses.fields(ModelConfig)}
+        if unknown:
+            raise ValueError(f"TrainConfig.model_overrides: unknown ModelConfig fields {sorted(unknown)}")
+        over = {k: tuple(v) if isinstance(v, list) else v for k, v in self.model_overrides.items()}
+        return dataclasses.replace(base, **over)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"training config: unknown fields {sorted(unknown)}")
+        return cls(**d)
+
+
+def model_config_to_dict(cfg: ModelConfig) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(cfg).items()}
+
+
+def model_config_from_dict(d: dict) -> ModelConfig:
+    return ModelConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
+    """Write JSON to a temporary name in the same folder, then rename over ``path``."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "w") as f:
+        json.dump(obj, f, indent=2)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def save_run_config(run_dir: str | os.PathLike, config: TrainConfig, candidates, rig_name: str = "") -> None:
+    """Write ``RUN/config.json``: training config, resolved model config and candidates (m)."""
+    doc = {
+        "train": config.to_dict(),
+        "model": model_config_to_dict(config.model_config()),
+        "candidates": [float(c) for c in candidates],
+        "rig": rig_name,
+    }
+    write_json_atomic(Path(run_dir) / CONFIG_FILE, doc)
+
+
+def load_run_config(run_dir: str | os.PathLike) -> tuple[TrainConfig, ModelConfig, list]:
+    """Read ``RUN/config.json`` -> (TrainConfig, ModelConfig, candidates in metres)."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no run configuration (is {run_dir} a training run folder?)")
+    try:
+        doc = json.loads(path.read_text())
+        return (TrainConfig.from_dict(doc["train"]), model_config_from_dict(doc["model"]),
+                list(doc["candidates"]))
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: unreadable run configuration ({exc})") from exc

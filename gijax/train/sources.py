@@ -1,0 +1,139 @@
+"""Training data streams with a resumable position: datasets on disk and in-memory arrays.
+
+A stream is an iterator of batches (dicts of numpy arrays: ``images`` (B, N, Hs, Ws, 3),
+``masks`` (B, N, Hs, Ws), ``distance`` (B, H, W) metres, ``valid`` (B, H, W)) with a
+``state()`` method; a stream factory ``make(state | None) -> stream`` rebuilds the stream at a
+saved position. Both kinds here follow :class:`gijax.data.Loader`'s epoch order (a permutation
+per ``(seed, epoch)``, dealt round-robin to processes).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Optional
+
+import jax
+import numpy as np
+
+from gijax.data.loader import epoch_order, shard_order
+from gijax.train.step import BATCH_KEYS
+
+
+class ArrayLoader:
+    """Endless, resumable batches from in-memory arrays (each ``(num_samples, ...)``).
+
+    ``batch_size`` is per process; ``state()`` gives the epoch and batch position of the next
+    batch, and ``ArrayLoader(..., state=s)`` continues from there.
+    """
+
+    def __init__(self, arrays: dict, batch_size: int, seed: int = 0, shuffle: bool = True,
+                 process_index: int = 0, process_count: int = 1, state: Optional[dict] = None):
+        missing = [k for k in BATCH_KEYS if k not in arrays]
+        if missing:
+            raise ValueError(f"in-memory training data lacks arrays {missing}; expected {BATCH_KEYS}")
+        self.arrays = {k: np.asarray(arrays[k]) for k in BATCH_KEYS}
+        self.num_samples = len(self.arrays["distance"])
+        if self.num_samples == 0:
+            raise ValueError("in-memory training data has no samples")
+        self.batch_size, self.seed, self.shuffle = int(batch_size), int(seed), bool(shuffle)
+        self.process_index, self.process_count = int(process_index), int(process_count)
+        shard = self.num_samples // self.process_count
+        self.batches_per_epoch = shard // self.batch_size
+        if self.batches_per_epoch == 0:
+            raise ValueError(f"batch size {self.batch_size} per process is larger than the "
+                             f"{shard} samples each of {self.process_count} process(es) holds")
+        self.epoch, self.position = 0, 0
+        if state is not None:
+            for k in ("seed", "batch_size", "num_samples"):
+                if k in state and state[k] != getattr(self, k):
+                    raise ValueError(f"data position was saved with {k}={state[k]!r}; this data "
+                                     f"stream has {k}={getattr(self, k)!r}")
+            self.epoch, self.position = int(state["epoch"]), int(state["position"])
+            if self.position >= self.batches_per_epoch:
+                self.epoch, self.position = self.epoch + 1, 0
+
+    def state(self) -> dict:
+        return {"epoch": self.epoch, "position": self.position, "seed": self.seed,
+                "batch_size": self.batch_size, "num_samples": self.num_samples}
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> dict:
+        order = shard_order(epoch_order(self.num_samples, self.seed, self.epoch, self.shuffle),
+                            self.process_index, self.process_count)
+        idx = order[self.position * self.batch_size:(self.position + 1) * self.batch_size]
+        self.position += 1
+        if self.position == self.batches_per_epoch:
+            self.epoch, self.position = self.epoch + 1, 0
+        return {k: v[idx] for k, v in self.arrays.items()}
+
+    def close(self) -> None:
+        pass
+
+
+def array_stream_factory(arrays: dict, batch_size: int, seed: int = 0) -> Callable:
+    """Factory for :class:`ArrayLoader` streams with this process's share of a global batch."""
+    per_process = batch_size // jax.process_count()
+
+    def make(state=None):
+        return ArrayLoader(arrays, per_process, seed, True, jax.process_index(),
+                           jax.process_count(), state)
+
+    return make
+
+
+def open_dataset(path: str | Path, what: str = "training"):
+    """A :class:`gijax.data.DatasetReader` with clear errors for a missing or empty folder."""
+    from gijax.data import DatasetReader
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{what} data folder {path} does not exist")
+    reader = DatasetReader(path)
+    if len(reader) == 0:
+        raise ValueError(f"{what} data folder {path} has no samples")
+    return reader
+
+
+def dataset_stream_factory(reader, rig, batch_size: int, seed: int, surrogate_hw, *,
+                           mask_augmentation: bool = False, workers: int = 2,
+                           what: str = "training") -> Callable:
+    """Factory for :class:`gijax.data.Loader` streams over ``reader`` (global ``batch_size``)."""
+    from gijax.data import Loader
+    from gijax.geometry.panorama import Panorama
+
+    per_process = batch_size // jax.process_count()
+    share = len(reader) // jax.process_count()
+    if per_process > share:
+        raise ValueError(f"batch size {batch_size} is larger than the {what} data "
+                         f"({len(reader)} samples in {getattr(reader, 'root', 'the dataset')}"
+                         f"{' over %d processes' % jax.process_count() if jax.process_count() > 1 else ''})")
+
+    def make(state=None):
+        if state is not None:
+            state = {k: v for k, v in state.items() if k not in ("process_index",)}
+        return Loader(reader, rig, batch_size=per_process, seed=seed,
+                      surrogate=Panorama.hemisphere(*surrogate_hw), shuffle=True,
+                      mask_augmentation=mask_augmentation, workers=workers,
+                      process_index=jax.process_index(), process_count=jax.process_count(),
+                      state=state)
+
+    return make
+
+
+def validation_batches(reader, rig, batch_size: int, surrogate_hw, limit: int = 0):
+    """The validation set in dataset order, once, in batches (the last one may be smaller)."""
+    from gijax.data import Loader
+    from gijax.geometry.panorama import Panorama
+
+    n = min(batch_size, len(reader))
+    loader = Loader(reader, rig, batch_size=n, seed=0, surrogate=Panorama.hemisphere(*surrogate_hw),
+                    shuffle=False, workers=1, drop_last=False, num_epochs=1)
+    try:
+        for i, batch in enumerate(loader):
+            if limit and i >= limit:
+                break
+            yield batch
+    finally:
+        loader.close()

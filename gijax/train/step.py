@@ -1,0 +1,201 @@
+"""The jitted training and evaluation steps, and their data-parallel placement.
+
+The training state is a plain pytree (dict) so that it can be jitted, sharded and checkpointed
+as is:
+
+* ``params``: the model's ``nnx.Param`` variables (an ``nnx.State``);
+* ``rest``: every other model variable (BatchNorm running statistics, RNG streams);
+* ``opt``: the optax optimiser state;
+* ``step``: int32 scalar, optimiser updates done.
+
+Data parallelism: one mesh axis ``'data'`` over all devices of all processes. Batches are
+sharded along their leading axis, the state is replicated; under ``jax.jit`` the gradient mean
+over the batch becomes a cross-device reduction, and BatchNorm statistics are those of the
+global batch, so a sharded step computes the same update as a single device would on the whole
+batch.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx
+from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
+
+from gijax.train.config import TrainConfig
+from gijax.train.losses import model_loss
+
+DATA_AXIS = "data"
+BATCH_KEYS = ("images", "masks", "distance", "valid")
+
+
+def learning_rate_schedule(cfg: TrainConfig) -> optax.Schedule:
+    """The learning rate per step for ``cfg.schedule`` (see :class:`TrainConfig`)."""
+    if cfg.schedule == "constant":
+        return optax.constant_schedule(cfg.lr)
+    if cfg.schedule == "cosine":
+        return optax.cosine_decay_schedule(cfg.lr, max(cfg.steps, 1), alpha=cfg.end_lr_factor)
+    if cfg.schedule == "warmup_cosine":
+        return optax.warmup_cosine_decay_schedule(
+            0.0, cfg.lr, max(cfg.warmup_steps, 1), max(cfg.steps, cfg.warmup_steps + 1),
+            end_value=cfg.lr * cfg.end_lr_factor)
+    return optax.exponential_decay(cfg.lr, cfg.decay_every, cfg.decay_factor, staircase=True)
+
+
+def make_optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
+    """Adam on the configured schedule, after optional global-norm clipping."""
+    adam = optax.adam(learning_rate_schedule(cfg))
+    if cfg.clip_norm is None:
+        return adam
+    return optax.chain(optax.clip_by_global_norm(cfg.clip_norm), adam)
+
+
+def split_model(model: nnx.Module):
+    """(train graphdef, eval graphdef, params, rest) of a model (train/eval differ in BatchNorm).
+
+    ``params`` holds the ``nnx.Param`` variables, ``rest`` every other variable (BatchNorm
+    statistics, RNG streams), both as ``nnx.State`` pytrees.
+    """
+    model.eval()
+    eval_def, _, _ = nnx.split(model, nnx.Param, ...)
+    model.train()
+    train_def, params, rest = nnx.split(model, nnx.Param, ...)
+    return train_def, eval_def, params, rest
+
+
+def load_into_model(model: nnx.Module, params, rest) -> nnx.Module:
+    """Write trained variable states into ``model`` (in place) and return it."""
+    nnx.update(model, params, rest)
+    return model
+
+
+def init_state(params, rest, tx: optax.GradientTransformation) -> dict:
+    return {"params": params, "rest": rest, "opt": tx.init(params),
+            "step": jnp.zeros((), jnp.int32)}
+
+
+def _cast_floats(tree, dtype):
+    return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x,
+                        tree)
+
+
+def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
+                     grad_accum: int = 1, bf16: bool = False) -> Callable:
+    """``step(state, batch, rig, candidates) -> (state, {'loss', 'grad_norm'})`` (not jitted).
+
+    ``batch`` holds ``images`` (B, N, Hs, Ws, 3), ``masks`` (B, N, Hs, Ws), ``distance``
+    (B, H, W) metres and ``valid`` (B, H, W). With ``grad_accum = k`` the batch is cut into k
+    interleaved micro-batches (sample i goes to micro-batch i mod k, which keeps every
+    micro-batch spread over all devices); their gradients are averaged and applied once.
+    BatchNorm running statistics are updated by each micro-batch in turn. With ``bf16`` the
+    forward and backward passes run in bfloat16; parameters, optimiser and loss stay float32.
+    """
+    def forward(params, rest, batch, rig, candidates):
+        # Fresh Variable objects at this trace level: nnx only lets a module mutate variables
+        # (BatchNorm statistics) created inside the transformation that runs it.
+        rest = jax.tree.map(lambda x: x, rest)
+        model = nnx.merge(graphdef, _cast_floats(params, jnp.bfloat16) if bf16 else params, rest)
+        images = batch["images"].astype(jnp.bfloat16 if bf16 else jnp.float32)
+        out = model(images, batch["masks"], rig, candidates.astype(images.dtype))
+        out = {k: v.astype(jnp.float32) if jnp.issubdtype(v.dtype, jnp.floating) else v
+               for k, v in out.items()}
+        loss = model_loss(loss_kind, out, batch["distance"], batch["valid"], candidates)
+        _, _, new_rest = nnx.split(model, nnx.Param, ...)
+        return loss, jax.tree.map(lambda new, old: new.astype(old.dtype), new_rest, rest)
+
+    grad_fn = jax.value_and_grad(forward, has_aux=True)
+
+    def step(state, batch, rig, candidates):
+        params, rest = state["params"], state["rest"]
+        if grad_accum == 1:
+            (loss, rest), grads = grad_fn(params, rest, batch, rig, candidates)
+        else:
+            def micro(x):
+                m = x.shape[0] // grad_accum
+                return x.reshape(m, grad_accum, *x.shape[1:]).swapaxes(0, 1)
+
+            micro_batches = {k: micro(batch[k]) for k in BATCH_KEYS}
+
+            def body(carry, mb):
+                rest_c, g_sum, l_sum = carry
+                (l, rest_c), g = grad_fn(params, rest_c, mb, rig, candidates)
+                return (rest_c, jax.tree.map(jnp.add, g_sum, g), l_sum + l), None
+
+            zeros = jax.tree.map(jnp.zeros_like, params)
+            (rest, g_sum, l_sum), _ = jax.lax.scan(body, (rest, zeros, jnp.zeros(())),
+                                                   micro_batches)
+            grads = jax.tree.map(lambda g: g / grad_accum, g_sum)
+            loss = l_sum / grad_accum
+        updates, opt = tx.update(grads, state["opt"], params)
+        params = optax.apply_updates(params, updates)
+        new_state = {"params": params, "rest": rest, "opt": opt, "step": state["step"] + 1}
+        return new_state, {"loss": loss, "grad_norm": optax.global_norm(grads)}
+
+    return step
+
+
+def build_eval_forward(eval_graphdef) -> Callable:
+    """``forward(params, rest, images, masks, rig, candidates) -> model outputs`` in eval mode."""
+
+    def forward(params, rest, images, masks, rig, candidates):
+        model = nnx.merge(eval_graphdef, params, jax.tree.map(lambda x: x, rest))
+        return model(images, masks, rig, candidates)
+
+    return forward
+
+
+# --------------------------------------------------------------------------- placement
+
+def make_mesh(devices=None) -> Mesh:
+    """A 1-D mesh named 'data' over ``devices`` (default: every device of every process)."""
+    devs = np.asarray(jax.devices() if devices is None else devices)
+    return Mesh(devs.reshape(-1), (DATA_AXIS,))
+
+
+def replicated(mesh: Mesh) -> NamedSharding:
+    return NamedSharding(mesh, P())
+
+
+def batch_sharded(mesh: Mesh) -> NamedSharding:
+    return NamedSharding(mesh, P(DATA_AXIS))
+
+
+def jit_train_step(step: Callable, mesh: Mesh) -> Callable:
+    """Jit a train step with the state replicated and the batch sharded over 'data'."""
+    rep, shard = replicated(mesh), batch_sharded(mesh)
+    return jax.jit(step, in_shardings=(rep, shard, rep, rep), out_shardings=(rep, rep),
+                   donate_argnums=(0,))
+
+
+def place_state(state: Any, mesh: Mesh) -> Any:
+    """Replicate a host/single-device state over the mesh."""
+    rep = replicated(mesh)
+    if jax.process_count() == 1:
+        return jax.device_put(state, rep)
+    return jax.tree.map(
+        lambda x: jax.make_array_from_process_local_data(rep, np.asarray(x)), state)
+
+
+def place_batch(local_batch: dict, mesh: Mesh) -> dict:
+    """This process's share of a batch (numpy) -> global arrays sharded over 'data'."""
+    shard = batch_sharded(mesh)
+    out = {}
+    for k in BATCH_KEYS:
+        x = np.asarray(local_batch[k])
+        if k == "valid":
+            x = x.astype(bool)
+        else:
+            x = x.astype(np.float32)
+        gshape = (x.shape[0] * jax.process_count(),) + x.shape[1:]
+        out[k] = jax.make_array_from_process_local_data(shard, x, gshape)
+    return out
+
+
+def abstract_like(state: Any, sharding) -> Any:
+    """ShapeDtypeStructs of ``state`` with ``sharding`` (restore targets for orbax)."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype, sharding=sharding),
+                        state)

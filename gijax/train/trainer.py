@@ -1,0 +1,347 @@
+"""The training loop: data-parallel steps, logging, validation, checkpoints and resume.
+
+Side effects (files, progress bar) live here; the numerical work is the jitted step of
+:mod:`gijax.train.step`. Only process 0 writes logs, sample images and the run config; every
+process takes part in the (collective) checkpoint saves. Validation runs on each process's
+first local device over the whole validation set (every process computes the same numbers, so
+no communication is needed to rank checkpoints).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Callable, Iterable, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gijax.geometry.rig import Rig
+from gijax.train import step as S
+from gijax.train.checkpoints import CheckpointStore
+from gijax.train.config import (CONFIG_FILE, TrainConfig, load_run_config, save_run_config,
+                                write_json_atomic)
+from gijax.train.metrics import batch_sums, summarize
+
+METRICS_FILE = "metrics.jsonl"
+
+
+def init_distributed(coordinator: Optional[str], num_processes: Optional[int],
+                     process_id: Optional[int]) -> None:
+    """``jax.distributed.initialize`` for multi-host runs (no-op without a coordinator).
+
+    ``coordinator`` is 'host:port' of process 0; every process passes the same address and
+    process count and its own id. CPU processes exchange data through gloo.
+    """
+    if not coordinator:
+        return
+    if num_processes is None or process_id is None:
+        raise ValueError("--coordinator needs --num-processes and --process-id as well")
+    if not 0 <= process_id < num_processes:
+        raise ValueError(f"--process-id must be in [0, {num_processes}); found {process_id}")
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
+                               process_id=process_id)
+
+
+def training_candidates(config: TrainConfig, rig: Optional[Rig]) -> np.ndarray:
+    """The candidate list (metres) a run trains with: explicit, or the preset's kind for ``rig``."""
+    mc = config.model_config()
+    if config.candidates is not None:
+        cand = np.asarray(config.candidates, np.float64)
+    else:
+        from gijax.candidates import candidates_for
+
+        kind = "gi" if mc.candidates == "gi" else "ev"
+        cand = np.asarray(candidates_for(kind, mc.num_candidates, rig=rig, d_min=mc.d_min,
+                                         d_max=mc.d_max), np.float64)
+    if cand.shape != (mc.num_candidates,):
+        raise ValueError(f"preset {config.preset!r} needs {mc.num_candidates} candidates; "
+                         f"found {cand.shape[0] if cand.ndim == 1 else cand.shape}")
+    if not np.all(np.diff(cand) > 0) or cand[0] <= 0:
+        raise ValueError(f"candidates must be positive and strictly ascending metres; found {cand}")
+    return cand
+
+
+def model_rig(rig: Rig) -> Rig:
+    """The rig as the network needs it: its static masks are not used inside the model (per
+    sample masks are an input), so they are dropped to keep them out of every step's arguments."""
+    return rig.replace(masks=tuple(None for _ in rig.masks))
+
+
+class Trainer:
+    """Trains one run folder; resumes from its newest readable checkpoint when there is one.
+
+    Args:
+      config: the training configuration.
+      run_dir: the run folder (created if needed).
+      rig: the training rig (sweep geometry; also the default for GI candidates).
+      make_train_stream: ``make(state | None) -> stream`` (see :mod:`gijax.train.sources`).
+      make_val_batches: ``() -> iterable of batches`` (whole validation set), or None.
+      rig_name: recorded in the run config.
+      progress: show a tqdm progress bar.
+      devices: devices of the data-parallel mesh (default: all devices of all processes).
+    """
+
+    def __init__(self, config: TrainConfig, run_dir, rig: Rig, make_train_stream: Callable,
+                 make_val_batches: Optional[Callable[[], Iterable[dict]]] = None,
+                 rig_name: str = "", progress: bool = True, devices=None):
+        from gijax.model import create_model
+
+        self.config = config
+        self.mc = config.model_config()
+        self.run_dir = Path(run_dir)
+        self.rig = model_rig(rig)
+        self.make_train_stream = make_train_stream
+        self.make_val_batches = make_val_batches
+        self.progress = progress
+        self.is_main = jax.process_index() == 0
+        self.mesh = S.make_mesh(devices)
+        ndev = self.mesh.devices.size
+        micro = config.batch_size // config.grad_accum
+        if micro % ndev:
+            raise ValueError(f"batch size {config.batch_size} / grad_accum {config.grad_accum} = "
+                             f"{micro} samples per micro-batch cannot be split over {ndev} devices")
+        if config.batch_size % jax.process_count():
+            raise ValueError(f"batch size {config.batch_size} cannot be split over "
+                             f"{jax.process_count()} processes")
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.candidates = self._resolve_candidates(rig, rig_name)
+
+        model = create_model(self.mc, config.seed)
+        self.train_def, self.eval_def, params, rest = S.split_model(model)
+        self.tx = S.make_optimizer(config)
+        self.lr_fn = S.learning_rate_schedule(config)
+        state = S.init_state(params, rest, self.tx)
+        self.store = CheckpointStore(self.run_dir, config.keep,
+                                     config.best_metric if config.keep_best else None,
+                                     config.best_mode)
+        abstract = S.abstract_like(state, S.replicated(self.mesh))
+        restored = self.store.restore_latest(abstract, self._check_meta)
+        if restored is None:
+            self.state = S.place_state(state, self.mesh)
+            self.start_step, self.stream_state = 0, None
+        else:
+            self.state, meta = restored
+            self.start_step, self.stream_state = int(meta["step"]), meta.get("stream")
+        self._step = S.jit_train_step(
+            S.build_train_step(self.train_def, self.tx, self.mc.loss, config.grad_accum,
+                               config.bf16), self.mesh)
+        self._eval = jax.jit(S.build_eval_forward(self.eval_def))
+        self._cand = jnp.asarray(self.candidates, jnp.float32)
+        self.history: list[dict] = []
+        self._tb = None
+
+    # ----------------------------------------------------------------- run folder checks
+    def _resolve_candidates(self, rig: Rig, rig_name: str) -> np.ndarray:
+        path = self.run_dir / CONFIG_FILE
+        if path.exists():
+            old_cfg, old_mc, old_cand = load_run_config(self.run_dir)
+            if old_cfg.preset != self.config.preset:
+                raise ValueError(f"run folder {self.run_dir} was trained with preset "
+                                 f"{old_cfg.preset!r}; resuming it with preset "
+                                 f"{self.config.preset!r} is not possible (use a new --out)")
+            if old_mc.num_candidates != self.mc.num_candidates or len(old_cand) != self.mc.num_candidates:
+                raise ValueError(f"run folder {self.run_dir} was trained with {len(old_cand)} "
+                                 f"candidates; this configuration has {self.mc.num_candidates}")
+            if old_mc != self.mc:
+                raise ValueError(f"run folder {self.run_dir} was trained with another network "
+                                 f"configuration ({old_mc}); this one is {self.mc}")
+            cand = np.asarray(old_cand, np.float64)
+            if self.config.candidates is not None and not np.allclose(self.config.candidates, cand):
+                raise ValueError(f"run folder {self.run_dir} was trained with candidates "
+                                 f"{cand.tolist()}; this configuration asks for "
+                                 f"{list(self.config.candidates)}")
+        else:
+            cand = training_candidates(self.config, rig)
+        if self.is_main:
+            save_run_config(self.run_dir, self.config, cand, rig_name)
+        return cand
+
+    def _check_meta(self, meta: dict) -> None:
+        if meta.get("preset") != self.config.preset:
+            raise ValueError(f"checkpoint step {meta.get('step')} in {self.run_dir} belongs to "
+                             f"preset {meta.get('preset')!r}, not {self.config.preset!r}")
+        if len(meta.get("candidates", [])) != self.mc.num_candidates:
+            raise ValueError(f"checkpoint step {meta.get('step')} in {self.run_dir} has "
+                             f"{len(meta.get('candidates', []))} candidates; this configuration "
+                             f"has {self.mc.num_candidates}")
+
+    def _meta(self, step: int, stream_state) -> dict:
+        return {"step": step, "preset": self.config.preset,
+                "candidates": [float(c) for c in self.candidates], "stream": stream_state,
+                "time": time.time()}
+
+    # ----------------------------------------------------------------- logging
+    def _log(self, record: dict) -> None:
+        self.history.append(record)
+        if not self.is_main:
+            return
+        with open(self.run_dir / METRICS_FILE, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        if self._tb is None:
+            from gijax.train.tbwriter import EventWriter
+
+            self._tb = EventWriter(self.run_dir / "tb")
+        prefix = record.get("split", "train")
+        self._tb.scalars(record["step"], {f"{prefix}/{k}": v for k, v in record.items()
+                                          if isinstance(v, (int, float)) and k != "step"})
+        self._tb.flush()
+
+    # ----------------------------------------------------------------- validation
+    def local_variables(self):
+        """Parameters and other variables on this process's first local device."""
+        first = lambda x: x.addressable_data(0)  # noqa: E731 - replicated: any copy will do
+        return jax.tree.map(first, self.state["params"]), jax.tree.map(first, self.state["rest"])
+
+    def predict_batch(self, batch: dict, params=None, rest=None) -> dict:
+        if params is None:
+            params, rest = self.local_variables()
+        return self._eval(params, rest, jnp.asarray(batch["images"], jnp.float32),
+                          jnp.asarray(batch["masks"], jnp.float32), self.rig, self._cand)
+
+    def validate(self, step: int) -> Optional[dict]:
+        """Metrics over the validation set (None without one); writes sample images."""
+        if self.make_val_batches is None:
+            return None
+        params, rest = self.local_variables()
+        parts, samples = [], []
+        for batch in self.make_val_batches():
+            out = self.predict_batch(batch, params, rest)
+            sums = batch_sums(out["inv_distance"], jnp.asarray(batch["distance"]),
+                              jnp.asarray(batch["valid"]), self._cand)
+            parts.append(jax.tree.map(np.asarray, sums))
+            if len(samples) < self.config.sample_images:
+                inv = np.asarray(out["inv_distance"])
+                for i in range(min(len(inv), self.config.sample_images - len(samples))):
+                    samples.append((inv[i], np.asarray(batch["distance"][i])))
+        if not parts:
+            raise ValueError("the validation data yielded no batches")
+        metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+        if self.is_main:
+            self._write_samples(step, samples)
+        return metrics
+
+    def _write_samples(self, step: int, samples) -> None:
+        import cv2
+
+        from gijax.viz.colormap import colorize
+
+        lo, hi = 1.0 / float(self.candidates[-1]), 1.0 / float(self.candidates[0])
+        folder = self.run_dir / "samples"
+        folder.mkdir(exist_ok=True)
+        for i, (inv, dist) in enumerate(samples):
+            gt = 1.0 / np.where(np.isfinite(dist) & (dist > 0), dist, np.inf)
+            gap = np.full((4, inv.shape[1], 3), 255, np.uint8)
+            rgb = np.concatenate([colorize(inv, lo, hi), gap, colorize(gt, lo, hi)], axis=0)
+            ok, png = cv2.imencode(".png", rgb[..., ::-1])
+            path = folder / f"step{step:07d}_sample{i}.png"
+            tmp = path.with_name("." + path.name + ".tmp")
+            tmp.write_bytes(png.tobytes())
+            os.replace(tmp, path)
+            if self._tb is not None:
+                self._tb.image(step, f"val/prediction_above_label_below/{i}", rgb)
+
+    # ----------------------------------------------------------------- loop
+    def fit(self, steps: Optional[int] = None) -> list[dict]:
+        """Train until ``steps`` (default ``config.steps``) optimiser updates are done."""
+        cfg = self.config
+        total = cfg.steps if steps is None else int(steps)
+        stream = self.make_train_stream(self.stream_state)
+        step = self.start_step
+        if step > 0:
+            self._log({"step": step, "event": "resumed"})
+        bar = None
+        if self.progress and self.is_main:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, initial=step, unit="step", dynamic_ncols=True)
+        t_last, n_last = time.perf_counter(), 0
+        try:
+            while step < total:
+                local = next(stream)
+                self.state, out = self._step(self.state, S.place_batch(local, self.mesh),
+                                             self.rig, self._cand)
+                step += 1
+                n_last += cfg.batch_size
+                if step % cfg.log_every == 0 or step == total:
+                    loss = float(out["loss"])
+                    if not math.isfinite(loss):
+                        raise FloatingPointError(f"training loss became {loss} at step {step}")
+                    now = time.perf_counter()
+                    rate = n_last / max(now - t_last, 1e-9)
+                    t_last, n_last = now, 0
+                    self._log({"step": step, "loss": loss, "grad_norm": float(out["grad_norm"]),
+                               "lr": float(self.lr_fn(step - 1)), "samples_per_s": rate})
+                    if bar is not None:
+                        bar.set_postfix(loss=f"{loss:.4f}", samples_s=f"{rate:.2f}")
+                if bar is not None:
+                    bar.update(1)
+                last = step == total
+                if (cfg.ckpt_every and step % cfg.ckpt_every == 0) or last:
+                    self.store.save(step, self.state, self._meta(step, stream.state()))
+                if (cfg.val_every and step % cfg.val_every == 0) or (last and self.make_val_batches):
+                    metrics = self.validate(step)
+                    if metrics is not None:
+                        self._log({"step": step, "split": "val", **metrics})
+                        if cfg.keep_best:
+                            self.store.maybe_save_best(step, self.state,
+                                                       self._meta(step, stream.state()), metrics)
+        finally:
+            if bar is not None:
+                bar.close()
+            getattr(stream, "close", lambda: None)()
+            if self._tb is not None:
+                self._tb.close()
+                self._tb = None
+        self.start_step, self.stream_state = step, None
+        return self.history
+
+    def close(self) -> None:
+        self.store.close()
+
+
+# --------------------------------------------------------------------------- inference
+
+def load_for_inference(run_dir, which: str = "best"):
+    """``(model, model_config, candidates)`` from a run folder alone.
+
+    ``which='best'`` takes the best validated checkpoint when there is one and the newest
+    periodic checkpoint otherwise; ``'latest'`` always the newest periodic one. The model is
+    in eval mode; candidates are the training list, (D,) float32 metres.
+    """
+    from flax import nnx
+
+    from gijax.model import create_model
+    from gijax.train.checkpoints import BEST, PERIODIC
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run folder {run_dir} does not exist")
+    cfg, mc, cand = load_run_config(run_dir)
+    model = create_model(mc, cfg.seed)
+    _, _, params, rest = S.split_model(model)
+    tx = S.make_optimizer(cfg)
+    dev = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    abstract = S.abstract_like(jax.eval_shape(lambda: S.init_state(params, rest, tx)), dev)
+    store = CheckpointStore(run_dir, keep=max(cfg.keep, 1),
+                            best_metric=cfg.best_metric if cfg.keep_best else None,
+                            best_mode=cfg.best_mode)
+    try:
+        out = None
+        if which == "best" and store.best is not None and store.best.all_steps():
+            out = store.restore_latest(abstract, which=BEST)
+        if out is None:
+            out = store.restore_latest(abstract, which=PERIODIC)
+        if out is None:
+            raise FileNotFoundError(f"run folder {run_dir} holds no checkpoint yet")
+    finally:
+        store.close()
+    state, _ = out
+    S.load_into_model(model, state["params"], state["rest"])
+    model.eval()
+    return model, mc, jnp.asarray(cand, jnp.float32)

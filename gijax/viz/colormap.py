@@ -1,0 +1,95 @@
+"""Colour-mapped images of scalar panoramas (distance, inverse distance, uncertainty).
+
+Only this module and the writers touch matplotlib, always with the Agg backend (no display).
+Files are written to a temporary name and renamed, so a partial PNG never looks complete.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import textwrap
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
+import numpy as np  # noqa: E402
+
+
+def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "turbo",
+             valid: np.ndarray | None = None, invalid_dim: float = 0.35) -> np.ndarray:
+    """(H, W) scalars -> (H, W, 3) uint8 RGB through a matplotlib colour map.
+
+    Values are clipped to [vmin, vmax]. Pixels where ``valid`` is False keep their colour
+    darkened by ``invalid_dim`` (so the estimate stays visible but is marked); non-finite
+    values are black.
+    """
+    values = np.asarray(values, np.float64)
+    if values.ndim != 2:
+        raise ValueError(f"colorize expects an (H, W) array; found shape {values.shape}")
+    if not vmax > vmin:
+        raise ValueError(f"colorize needs vmax > vmin; found vmin={vmin}, vmax={vmax}")
+    finite = np.isfinite(values)
+    t = np.clip((np.where(finite, values, vmin) - vmin) / (vmax - vmin), 0.0, 1.0)
+    rgb = matplotlib.colormaps[cmap](t)[..., :3]
+    if valid is not None:
+        rgb = np.where(np.asarray(valid, bool)[..., None], rgb, rgb * invalid_dim)
+    rgb = np.where(finite[..., None], rgb, 0.0)
+    return (rgb * 255.0 + 0.5).astype(np.uint8)
+
+
+def _atomic_savefig(fig, path: str, dpi: int) -> None:
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".png", dir=directory)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=dpi, format="png")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def save_panorama_png(path: str, values: np.ndarray, label: str, vmin: float, vmax: float,
+                      cmap: str = "turbo", title: str = "", valid: np.ndarray | None = None,
+                      ticks: dict | None = None, dpi: int = 100) -> str:
+    """Write an (H, W) panorama as a colour-mapped PNG with a labelled colour bar.
+
+    ``ticks`` optionally maps colour-bar positions (in ``values`` units) to tick labels, e.g.
+    inverse distances labelled in metres; ticks closer than 6 % of the bar to a kept one are
+    dropped. Pixels where ``valid`` is False are darkened. Returns ``path``.
+    """
+    rgb = colorize(values, vmin, vmax, cmap, valid)
+    h, w = rgb.shape[:2]
+    width_in = max(6.0, w / dpi)
+    fig = plt.figure(figsize=(width_in, width_in * h / w + 1.4))
+    try:
+        ax = fig.add_axes([0.03, 0.38, 0.94, 0.5])
+        ax.imshow(rgb, interpolation="nearest", aspect="auto")
+        ax.set_axis_off()
+        if title:
+            ax.set_title("\n".join(textwrap.wrap(title, 90)), fontsize=9)
+        cax = fig.add_axes([0.1, 0.16, 0.8, 0.07])
+        mappable = matplotlib.cm.ScalarMappable(
+            norm=matplotlib.colors.Normalize(vmin, vmax), cmap=cmap)
+        bar = fig.colorbar(mappable, cax=cax, orientation="horizontal")
+        bar.set_label(label)
+        if ticks:
+            kept: dict = {}
+            span = vmax - vmin
+            # The ends of the bar first, then the rest from the top down.
+            def priority(p):
+                return (min(abs(p - vmin), abs(p - vmax)) > 1e-9 * span, -p)
+
+            for pos in sorted(ticks, key=priority):
+                if all(abs(pos - k) >= 0.06 * span for k in kept):
+                    kept[pos] = ticks[pos]
+            order = sorted(kept)
+            bar.set_ticks(order)
+            bar.set_ticklabels([kept[k] for k in order])
+        _atomic_savefig(fig, path, dpi)
+    finally:
+        plt.close(fig)
+    return path

@@ -1,0 +1,227 @@
+"""The assembled network: camera-count and order invariance, jit = eager, gradients, candidates
+swapped at inference, and input validation (small custom configs; paper shapes in benchmarks)."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from gijax.geometry.layouts import TRAIN_BASELINE, synthetic_camera
+from gijax.geometry.rig import make_rig
+from gijax.model import OmniStereoNet, create_model
+from gijax.nn.presets import ModelConfig
+from gijax.train.losses import volume_loss
+
+TINY_VAR = ModelConfig(
+    name="tiny-variance", num_candidates=8, candidates="gi", loss="volume", features="spherical",
+    cost_volume="variance", feature_channels=4, feature_blocks=(1, 1), unet_in=4, unet_base=4,
+    surrogate_hw=(32, 128), cost_hw=(8, 32), output_hw=(16, 64), image_scale=1 / 16)
+TINY_CAT = dataclasses.replace(TINY_VAR, name="tiny-concat", loss="smooth_l1", features="plain",
+                               cost_volume="concat", unet_in=12)
+G8 = np.array([0.5, 0.60103325, 0.73863074, 0.94007016, 1.26849604, 1.91086214, 3.77357055,
+               100.0], np.float32)
+
+
+def tri_positions():
+    ang = np.deg2rad([90.0, 210.0, 330.0])
+    return np.stack([np.cos(ang), np.sin(ang), np.zeros(3)], -1) * TRAIN_BASELINE / np.sqrt(3)
+
+
+def rig_from(positions, reference):
+    cams = [synthetic_camera(64, 300.0 / 16) for _ in positions]
+    return make_rig(cams, np.tile(np.eye(3), (len(positions), 1, 1)), positions, reference)
+
+
+def permuted(rig, perm):
+    return rig.replace(cameras=tuple(rig.cameras[i] for i in perm),
+                       rotations=rig.rotations[jnp.asarray(perm)],
+                       translations=rig.translations[jnp.asarray(perm)],
+                       masks=tuple(rig.masks[i] for i in perm),
+                       names=tuple(rig.names[i] for i in perm))
+
+
+def inputs(n, seed, batch=1, hw=(32, 128)):
+    """Random surrogates and masks with a few rectangular occlusions (like a rig's body)."""
+    rng = np.random.default_rng(seed)
+    sur = rng.uniform(size=(batch, n, *hw, 3)).astype(np.float32)
+    masks = np.ones((batch, n, *hw), np.float32)
+    for b in range(batch):
+        for i in range(n):
+            r, c = rng.integers(hw[0] // 2, hw[0]), rng.integers(0, hw[1] - 16)
+            masks[b, i, r:, c:c + rng.integers(4, 16)] = 0.0
+    return jnp.asarray(sur), jnp.asarray(masks)
+
+
+forward = nnx.jit(lambda m, s, k, r, c: m(s, k, r, c))
+
+
+@pytest.fixture(scope="module")
+def variance_model():
+    model = create_model(TINY_VAR, seed=1)
+    model.eval()
+    return model
+
+
+def test_variance_model_any_camera_count_and_order(variance_model):
+    pos = tri_positions()
+    rig3 = rig_from(pos, pos[0])
+    sur3, m3 = inputs(3, 0)
+    out3 = forward(variance_model, sur3, m3, rig3, jnp.asarray(G8))
+    # A fourth camera whose mask is all invalid changes nothing ...
+    pos4 = np.concatenate([pos, [[0.25, 0.2, 0.0]]])
+    rig4 = rig_from(pos4, pos[0])
+    extra, _ = inputs(1, 5)
+    sur4 = jnp.concatenate([sur3, extra], axis=1)
+    m4_off = jnp.concatenate([m3, jnp.zeros_like(m3[:, :1])], axis=1)
+    out4_off = forward(variance_model, sur4, m4_off, rig4, jnp.asarray(G8))
+    for key in ("inv_distance", "prob", "entropy", "valid"):
+        np.testing.assert_allclose(np.asarray(out4_off[key]), np.asarray(out3[key]), atol=1e-6,
+                                   err_msg=key)
+    # ... and with its mask on, the same weights use it.
+    m4_on = jnp.concatenate([m3, jnp.ones_like(m3[:, :1])], axis=1)
+    out4 = forward(variance_model, sur4, m4_on, rig4, jnp.asarray(G8))
+    change = np.abs(np.asarray(out4["inv_distance"]) - np.asarray(out3["inv_distance"]))
+    assert np.all(np.isfinite(change)) and change.max() > 1e-4
+    # Camera order does not matter.
+    perm = [2, 0, 1]
+    out_p = forward(variance_model, sur3[:, perm], m3[:, perm], permuted(rig3, perm),
+                    jnp.asarray(G8))
+    np.testing.assert_allclose(np.asarray(out_p["inv_distance"]),
+                               np.asarray(out3["inv_distance"]), rtol=1e-5, atol=1e-6)
+    # Inverse distance is a convex combination of the candidates' inverses.
+    inv = np.asarray(out3["inv_distance"])
+    assert np.all(inv >= 1 / G8[-1] - 1e-6) and np.all(inv <= 1 / G8[0] + 1e-6)
+    np.testing.assert_allclose(np.asarray(out3["prob"]).sum(1), 1.0, atol=1e-5)
+
+
+def test_candidates_swap_without_touching_weights(variance_model):
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 1)
+    ev = (1.0 / np.linspace(2.0, 0.01, 8)).astype(np.float32)
+    before = jax.tree_util.tree_map(np.asarray, nnx.state(variance_model, nnx.Param))
+    out_gi = forward(variance_model, sur, m, rig, jnp.asarray(G8))
+    out_ev = forward(variance_model, sur, m, rig, jnp.asarray(ev))
+    inv = np.asarray(out_ev["inv_distance"])
+    assert np.all(inv >= 0.01 - 1e-6) and np.all(inv <= 2.0 + 1e-6)
+    assert np.abs(inv - np.asarray(out_gi["inv_distance"])).max() > 1e-3
+    after = jax.tree_util.tree_map(np.asarray, nnx.state(variance_model, nnx.Param))
+    jax.tree_util.tree_map(np.testing.assert_array_equal, before, after)
+
+
+def test_jit_equals_eager(variance_model):
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 0)
+    eager = variance_model(sur, m, rig, jnp.asarray(G8))
+    jitted = forward(variance_model, sur, m, rig, jnp.asarray(G8))
+    for key in ("inv_distance", "prob", "entropy"):
+        np.testing.assert_allclose(np.asarray(jitted[key]), np.asarray(eager[key]), rtol=2e-5,
+                                   atol=2e-6, err_msg=key)
+    # Validity thresholds (mask > 0.5, hemisphere edge) could flip on float rounding only.
+    assert np.mean(np.asarray(jitted["valid"]) != np.asarray(eager["valid"])) < 2e-3
+
+
+def test_concat_model_needs_every_camera():
+    model = create_model(TINY_CAT, seed=2)
+    model.eval()
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 2)
+    full = forward(model, sur, jnp.ones_like(m), rig, jnp.asarray(G8))
+    assert np.asarray(full["valid"]).mean() > 0.9
+    # Occluding part of one camera's view removes cells from `valid`; the estimate is finite.
+    m_half = jnp.ones_like(m).at[:, 1, :, :64].set(0.0)
+    part = forward(model, sur, m_half, rig, jnp.asarray(G8))
+    assert np.asarray(part["valid"]).mean() < np.asarray(full["valid"]).mean() - 0.1
+    assert np.all(np.isfinite(np.asarray(part["distance"])))
+
+
+def test_every_parameter_gets_a_finite_nonzero_gradient():
+    model = create_model(TINY_VAR, seed=3)
+    model.train()
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 3, batch=2)
+    rng = np.random.default_rng(4)
+    target = jnp.asarray(rng.uniform(0.6, 20.0, size=(2, 16, 64)).astype(np.float32))
+    label_ok = jnp.ones((2, 16, 64), bool)
+    cand = jnp.asarray(G8)
+
+    @nnx.jit
+    def grads(model):
+        def loss_fn(model):
+            out = model(sur, m, rig, cand)
+            return volume_loss(out["prob"], target, label_ok, cand)
+        return nnx.grad(loss_fn)(model)
+
+    g = grads(model)
+    flat = jax.tree_util.tree_flatten_with_path(g)[0]
+    assert len(flat) > 20
+    scale = max(float(jnp.max(jnp.abs(v))) for _, v in flat)
+    for path, v in flat:
+        name = jax.tree_util.keystr(path)
+        v = np.asarray(v)
+        assert np.all(np.isfinite(v)), name
+        if "head" in name and "bias" in name:
+            # The head's bias shifts all candidates' logits equally; the softmax cancels it.
+            assert np.abs(v).max() < 1e-5 * scale, name
+        else:
+            assert np.abs(v).max() > 1e-9 * scale and np.abs(v).max() > 0, name
+
+
+def test_create_model_matches_flax_structure_and_initial_distributions():
+    model = create_model(TINY_VAR, seed=7)
+    reference = nnx.eval_shape(lambda: OmniStereoNet(TINY_VAR, nnx.Rngs(7)))
+    assert nnx.graphdef(model) == nnx.graphdef(reference)
+    got = jax.tree_util.tree_flatten_with_path(nnx.state(model))[0]
+    want = jax.tree_util.tree_leaves(nnx.state(reference))
+    assert [(v.shape, v.dtype) for _, v in got] == [(v.shape, v.dtype) for v in want]
+    z = []
+    for path, v in got:
+        name = jax.tree_util.keystr(path)
+        v = np.asarray(v)
+        if "kernel" in name:
+            z.append((v * np.sqrt(np.prod(v.shape[:-1]))).ravel())  # LeCun: var = 1 / fan_in
+        elif "scale" in name or "var" in name:
+            assert np.all(v == 1.0), name
+        else:
+            assert np.all(v == 0.0), name
+    z = np.concatenate(z)
+    assert z.size > 5000 and abs(z.std() - 1.0) < 0.03 and abs(z.mean()) < 0.03
+    assert np.abs(z).max() <= 2.0 / 0.87962566103423978 + 1e-5
+    other = create_model(TINY_VAR, seed=8)
+    assert not np.allclose(np.asarray(other.unet.head.kernel[...]),
+                           np.asarray(model.unet.head.kernel[...]))
+
+
+def test_bad_inputs_raise_before_computing(variance_model):
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 0)
+    cand = jnp.asarray(G8)
+    cases = [
+        ((sur[:, :2], m[:, :2], rig, cand), "3 cameras but 2"),
+        ((sur[..., :2], m, rig, cand), r"\(batch, cameras, 32, 128, 3\)"),
+        ((sur[:, :, :16], m, rig, cand), r"\(batch, cameras, 32, 128, 3\)"),
+        ((sur, m[:, :, :16], rig, cand), "masks must have shape"),
+        ((sur, m, rig, cand[:7]), "needs 8 candidates"),
+        ((sur, m, rig, cand[::-1]), "ascending"),
+        ((sur, m, rig, cand.at[0].set(0.0)), "positive"),
+        ((sur, m, rig, cand.at[3].set(jnp.nan)), "finite"),
+    ]
+    for args, msg in cases:
+        with pytest.raises(ValueError, match=msg):
+            variance_model(*args)
+    concat = create_model(TINY_CAT)
+    pos4 = np.concatenate([pos, [[0.25, 0.2, 0.0]]])
+    sur4, m4 = inputs(4, 0)
+    with pytest.raises(ValueError, match="concatenates exactly 3 cameras"):
+        concat(sur4, m4, rig_from(pos4, pos[0]), cand)
+    with pytest.raises(ValueError, match="unknown model preset"):
+        create_model("G17")
+    with pytest.raises(ValueError, match="preset name or a ModelConfig"):
+        create_model(42)

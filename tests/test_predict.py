@@ -1,0 +1,146 @@
+"""Inference from raw fisheye images, the output files, and the ``gijax predict`` command."""
+
+import dataclasses
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from gijax.cli import main
+from gijax.geometry.layouts import builtin_rig
+from gijax.model import create_model
+from gijax.nn.presets import ModelConfig
+from gijax.predict import predict, write_prediction
+
+TINY = ModelConfig(
+    name="tiny-variance", num_candidates=8, candidates="gi", loss="volume", features="spherical",
+    cost_volume="variance", feature_channels=4, feature_blocks=(1, 1), unet_in=4, unet_base=4,
+    surrogate_hw=(32, 128), cost_hw=(8, 32), output_hw=(16, 64), image_scale=1 / 16)
+G8 = [0.5, 0.60103325, 0.73863074, 0.94007016, 1.26849604, 1.91086214, 3.77357055, 100.0]
+RGB = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255]], np.uint8)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    rig = builtin_rig("paper-train")
+    model = create_model(TINY, seed=0)
+    # One flat colour per camera: each point's colour says which camera it was taken from.
+    images = np.broadcast_to(RGB[:, None, None], (3, 64, 64, 3)).copy()
+    return rig, model, images, predict(model, rig, images, None, G8)
+
+
+def np_rays(h, w):
+    lon = -math.pi + 2 * math.pi * (np.arange(w) + 0.5) / w
+    polar = (math.pi / 2) * (np.arange(h) + 0.5) / h
+    lon, polar = np.meshgrid(lon, polar)
+    return np.stack([np.sin(polar) * np.cos(lon), np.sin(polar) * np.sin(lon), np.cos(polar)], -1)
+
+
+def read_ply(path):
+    data = open(path, "rb").read()
+    head, body = data.split(b"end_header\n", 1)
+    lines = head.decode().splitlines()
+    assert lines[:2] == ["ply", "format binary_little_endian 1.0"]
+    n = int(lines[2].split()[-1])
+    rec = np.frombuffer(body, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"),
+                                     ("g", "u1"), ("b", "u1")], count=n)
+    assert len(body) == n * 15
+    return np.stack([rec["x"], rec["y"], rec["z"]], -1), np.stack([rec["r"], rec["g"], rec["b"]],
+                                                                  -1)
+
+
+def test_predict_outputs(setup):
+    rig, model, images, out = setup
+    assert out["distance"].shape == (16, 64) and out["prob"].shape == (8, 16, 64)
+    assert np.all(out["distance"] >= 0.5 - 1e-4) and np.all(out["distance"] <= 100.0 + 1e-2)
+    np.testing.assert_allclose(out["inv_distance"] * out["distance"], 1.0, rtol=1e-5)
+    assert np.all(out["entropy"] >= 0) and np.all(out["entropy"] <= math.log(8) + 1e-5)
+    # Colours come from the camera nearest the reference (camera 0 = the reference here),
+    # from another camera where the rig's body hides the point from camera 0.
+    col = (out["colour"] * 255 + 0.5).astype(int)
+    from_cam = [np.all(col == c, axis=-1) for c in RGB]
+    assert np.all(from_cam[0] | from_cam[1] | from_cam[2] | np.all(col == 0, axis=-1))
+    assert from_cam[0].mean() > 0.8 and (from_cam[1] | from_cam[2]).any()
+    assert 0.3 < out["valid"].mean() <= 1.0
+
+
+def test_full_size_images_are_resized_for_the_model(setup):
+    rig, model, images, out = setup
+    big = np.broadcast_to(RGB[:, None, None], (3, 1024, 1024, 3))
+    out_big = predict(model, rig, big, None, G8)
+    np.testing.assert_allclose(out_big["distance"], out["distance"], rtol=1e-5)
+
+
+def test_predict_rejects_bad_input(setup):
+    rig, model, images, _ = setup
+    cases = [
+        ((images[:2], None, G8), "3 cameras but 2 images"),
+        ((images[:, :50], None, G8), "images must be 1024 x 1024"),
+        ((np.concatenate([images, images[..., :1]], -1), None, G8), "3 \\(RGB\\) channels"),
+        ((images, np.ones((3, 64, 60)), G8), "masks must have shape"),
+        ((images, None, G8[:7]), "needs 8 candidates"),
+        ((images, None, G8[::-1]), "ascending"),
+        ((images, None, [-1.0] + G8[1:]), "positive"),
+    ]
+    for args, msg in cases:
+        with pytest.raises(ValueError, match=msg):
+            predict(model, rig, *args)
+
+
+def test_written_files(setup, tmp_path):
+    rig, _, _, out = setup
+    paths = write_prediction(out, rig, tmp_path / "pred", title="test")
+    dist = np.load(paths["distance"])
+    assert dist.dtype == np.float32 and np.array_equal(dist, out["distance"].astype(np.float32))
+    for key in ("inverse_distance_png", "uncertainty_png"):
+        png = cv2.imread(paths[key])
+        assert png is not None and png.shape[1] >= 600 and png.shape[0] > 200
+        # The colour bar: a row with a long run of distinct colours below the panorama.
+        assert max(len(np.unique(row.reshape(-1, 3), axis=0)) for row in png) > 100
+    pts, cols = read_ply(paths["points"])
+    keep = out["valid"] & (out["distance"] <= 100.0)
+    want = np.asarray(rig.reference) + out["distance"][..., None] * np_rays(16, 64)
+    assert len(pts) == keep.sum() > 0
+    np.testing.assert_allclose(pts, want[keep], rtol=1e-5, atol=1e-5)
+    np.testing.assert_array_equal(cols, (out["colour"][keep] * 255 + 0.5).astype(np.uint8))
+    meta = json.loads((tmp_path / "pred" / "prediction.json").read_text())
+    assert meta["points"] == len(pts) and np.allclose(meta["candidates_m"], G8)
+
+
+def test_cli(tmp_path, capsys):
+    files = []
+    for i, c in enumerate(RGB):
+        p = tmp_path / f"cam{i}.png"
+        cv2.imwrite(str(p), np.broadcast_to(c[::-1], (64, 64, 3)).copy())  # written as BGR
+        files.append(str(p))
+    masks = []
+    for i in range(3):
+        p = tmp_path / f"mask{i}.png"
+        m = np.full((64, 64), 255, np.uint8)
+        m[40:, 20:30] = 0
+        cv2.imwrite(str(p), m)
+        masks.append(str(p))
+    cfg = tmp_path / "tiny.json"
+    cfg.write_text(json.dumps(dataclasses.asdict(TINY)))
+    cand = tmp_path / "cand.txt"
+    cand.write_text("\n".join(str(c * 1.5) for c in G8))
+    out = tmp_path / "out"
+    rc = main(["predict", "--preset", str(cfg), "--rig", "paper-train", "--images", *files,
+               "--masks", *masks, "--candidates", str(cand), "--out", str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "UNTRAINED tiny-variance" in text
+    meta = json.loads((out / "prediction.json").read_text())
+    np.testing.assert_allclose(meta["candidates_m"], np.array(G8) * 1.5)
+    assert "UNTRAINED" in meta["title"]
+    dist = np.load(out / "distance.npy")
+    assert dist.shape == (16, 64) and dist.min() >= 0.75 - 1e-4
+    assert (out / "points.ply").stat().st_size > 100
+    rc = main(["predict", "--preset", str(cfg), "--rig", "paper-train", "--images", *files[:2],
+               "--out", str(out)])
+    assert rc == 1 and "3 cameras but 2 images" in capsys.readouterr().err
+    rc = main(["predict", "--preset", "G99", "--rig", "paper-train", "--images", *files,
+               "--out", str(out)])
+    assert rc == 1 and "unknown model preset" in capsys.readouterr().err
