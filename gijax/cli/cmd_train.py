@@ -45,6 +45,9 @@ def register(subparsers) -> None:
     p.add_argument("--coordinator", default=None, help="host:port of process 0 (multi-host)")
     p.add_argument("--num-processes", type=int, default=None)
     p.add_argument("--process-id", type=int, default=None)
+    p.add_argument("--override", action="append", default=[], metavar="FIELD=VALUE",
+                   help="replace a network configuration field of the preset (JSON value), "
+                        "e.g. --override 'cost_hw=[8,32]'; repeatable")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -70,6 +73,20 @@ def read_candidate_file(path: str) -> list:
     return [float(v) for v in values]
 
 
+def parse_overrides(items) -> dict:
+    """``['a=1', 'b=[2,3]']`` -> ``{'a': 1, 'b': [2, 3]}`` (values are JSON, else strings)."""
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"--override expects FIELD=VALUE; found {item!r}")
+        key, value = item.split("=", 1)
+        try:
+            out[key.strip()] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key.strip()] = value
+    return out
+
+
 def run(args) -> int:
     from gijax.train.trainer import init_distributed
 
@@ -79,7 +96,7 @@ def run(args) -> int:
     from gijax.train.trainer import Trainer
 
     cfg = TrainConfig(
-        preset=args.preset, lr=args.lr, schedule=args.schedule, warmup_steps=args.warmup_steps,
+        preset=args.preset, model_overrides=parse_overrides(args.override), lr=args.lr, schedule=args.schedule, warmup_steps=args.warmup_steps,
         clip_norm=args.clip_norm, batch_size=args.batch, grad_accum=args.grad_accum,
         steps=args.steps, seed=args.seed, bf16=args.bf16, val_every=args.val_every,
         val_batches=args.val_batches, ckpt_every=args.ckpt_every, keep=args.keep,

@@ -135,6 +135,7 @@ class Trainer:
         self._cand = jnp.asarray(self.candidates, jnp.float32)
         self.history: list[dict] = []
         self._tb = None
+        self._stream = None
 
     # ----------------------------------------------------------------- run folder checks
     def _resolve_candidates(self, rig: Rig, rig_name: str) -> np.ndarray:
@@ -251,7 +252,9 @@ class Trainer:
         """Train until ``steps`` (default ``config.steps``) optimiser updates are done."""
         cfg = self.config
         total = cfg.steps if steps is None else int(steps)
-        stream = self.make_train_stream(self.stream_state)
+        if self._stream is None:
+            self._stream = self.make_train_stream(self.stream_state)
+        stream = self._stream
         step = self.start_step
         if step > 0:
             self._log({"step": step, "event": "resumed"})
@@ -294,14 +297,16 @@ class Trainer:
         finally:
             if bar is not None:
                 bar.close()
-            getattr(stream, "close", lambda: None)()
             if self._tb is not None:
                 self._tb.close()
                 self._tb = None
-        self.start_step, self.stream_state = step, None
+        self.start_step = step
         return self.history
 
     def close(self) -> None:
+        if self._stream is not None:
+            getattr(self._stream, "close", lambda: None)()
+            self._stream = None
         self.store.close()
 
 
