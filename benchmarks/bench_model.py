@@ -3,7 +3,8 @@
 For every distinct network structure (E8 and G8 share one: the candidates are inputs, not
 weights; likewise E16, G16 and G16V) the forward pass (surrogate images -> distance panorama,
 batch 1, eval mode, random inputs) is compiled once, run ``--warmup`` times, then timed
-``--reps`` times; the median is reported. Memory is XLA's own accounting of the compiled
+``--reps`` times; the median (and the minimum, less sensitive to other processes on a shared
+machine) is reported. Memory is XLA's own accounting of the compiled
 program (``compile().memory_analysis()``: arguments + outputs + temporaries, the peak the
 executable needs), and the process's resident-set growth during the first run.
 G16VV is also run with the 4-camera layout (paper-test3) to measure the cost of a camera.
@@ -86,6 +87,7 @@ def measure(cfg, rig_name: str, reps: int, warmup: int) -> dict:
         if i == 0:
             rss_delta = rss_mb() - rss0
     return dict(cameras=n, compile_s=compile_s, median_ms=1e3 * statistics.median(times),
+                min_ms=1e3 * min(times),
                 times_ms=[1e3 * t for t in times], xla_peak_mb=xla_mb,
                 xla_temp_mb=None if mem is None else mem.temp_size_in_bytes / 2**20,
                 rss_delta_mb=rss_delta, peak_rss_mb=resource.getrusage(
@@ -119,7 +121,8 @@ def main(argv=None) -> int:
             rows.append(dict(size=size, preset=cfg.name, rig=rig_name, same_as=(
                 None if first == cfg.name else first), **res))
 
-    header = (f"{'size':5s} {'preset':18s} {'cams':>4s} {'median ms':>10s} {'compile s':>9s} "
+    header = (f"{'size':5s} {'preset':18s} {'cams':>4s} {'median ms':>10s} {'min ms':>9s} "
+              f"{'compile s':>9s} "
               f"{'XLA peak MB':>11s} {'RSS +MB':>8s}  note")
     print(header)
     print("-" * len(header))
@@ -127,7 +130,7 @@ def main(argv=None) -> int:
         note = f"same network as {r['same_as']}" if r["same_as"] else ""
         xla = "n/a" if r["xla_peak_mb"] is None else f"{r['xla_peak_mb']:.0f}"
         print(f"{r['size']:5s} {r['preset']:18s} {r['cameras']:4d} {r['median_ms']:10.1f} "
-              f"{r['compile_s']:9.1f} {xla:>11s} {r['rss_delta_mb']:8.0f}  {note}")
+              f"{r['min_ms']:9.1f} {r['compile_s']:9.1f} {xla:>11s} {r['rss_delta_mb']:8.0f}  {note}")
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     tmp = args.out + ".tmp"
     with open(tmp, "w") as f:

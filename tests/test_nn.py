@@ -257,6 +257,21 @@ def test_unet_shapes_and_validation():
             nnx.eval_shape(lambda m, v: m(v), unet, jax.ShapeDtypeStruct(bad, jnp.float32))
 
 
+def test_feature_extractor_shapes_and_validation():
+    for name in ("G16-cpu", "G16VV-cpu"):
+        cfg = get_preset(name)
+        fx = nnx.eval_shape(lambda c=cfg: FeatureExtractor(c, nnx.Rngs(0)))
+        out = nnx.eval_shape(lambda m, x: m(x), fx,
+                             jax.ShapeDtypeStruct((2, *cfg.surrogate_hw, 3), jnp.float32))
+        assert out.shape == (2, 32, 128, 8)
+    with pytest.raises(ValueError, match="divisible by 4"):
+        nnx.eval_shape(lambda m, x: m(x), fx, jax.ShapeDtypeStruct((1, 130, 512, 3), jnp.float32))
+    with pytest.raises(ValueError, match="SphericalConv built for 32 x 128"):
+        nnx.eval_shape(lambda m, x: m(x), fx, jax.ShapeDtypeStruct((1, 64, 512, 3), jnp.float32))
+    with pytest.raises(ValueError, match="3\\)"):
+        nnx.eval_shape(lambda m, x: m(x), fx, jax.ShapeDtypeStruct((1, 128, 512, 1), jnp.float32))
+
+
 # ----------------------------------------------------------------------------- regressor
 
 

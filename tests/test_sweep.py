@@ -21,6 +21,9 @@ G16 = np.array([0.5, 0.5436655530390901, 0.5933598538089077, 0.6505899686755604,
                 1.161983802830304, 1.3612365930547528, 1.637348559910646, 2.0467867239341255,
                 2.7192485658566654, 4.033339718346582, 7.764432455310304, 100.0])
 
+sweep_jit = jax.jit(sweep_grid, static_argnums=(2, 3))
+sample_jit = jax.jit(sample_sweep)
+
 DS = dict(fx=25.0, fy=25.0, cx=63.5, cy=63.5, xi=-0.2, alpha=0.59)
 DS_FOV = 190.0
 
@@ -75,7 +78,7 @@ def test_sweep_grid_matches_numpy_rederivation():
     rig = ds_rig()
     cand = G16[[0, 5, 9, 15]]
     cost, feat = Panorama.hemisphere(12, 48), Panorama.hemisphere(32, 128)
-    coords, valid = jax.jit(sweep_grid, static_argnums=(2, 3))(rig, jnp.asarray(cand), cost, feat)
+    coords, valid = sweep_jit(rig, jnp.asarray(cand), cost, feat)
     assert coords.shape == (3, 4, 12, 48, 2) and valid.shape == (3, 4, 12, 48)
     coords, valid = np.asarray(coords), np.asarray(valid)
 
@@ -125,13 +128,13 @@ def test_sweep_grid_reaches_the_seam():
     """Cells looking along -x map to the feature map's seam; they are sampled, not dropped."""
     rig = ds_rig()
     feat = Panorama.hemisphere(16, 64)
-    coords, valid = sweep_grid(rig, jnp.asarray(G16[:2]), Panorama.hemisphere(8, 64), feat)
+    coords, valid = sweep_jit(rig, jnp.asarray(G16[:2]), Panorama.hemisphere(8, 64), feat)
     col = np.asarray(coords[..., 0])
     seam = np.asarray(valid) & ((col > 63.0) | (col < 0.0))
     assert seam.sum() > 0
     ramp = np.cos(np.linspace(0, 2 * np.pi, 64, endpoint=False) + np.pi / 64)
     maps = jnp.broadcast_to(jnp.asarray(ramp, jnp.float32)[None, :, None], (3, 16, 64, 1))
-    out, ok = sample_sweep(maps, coords, valid)
+    out, ok = sample_jit(maps, coords, valid)
     lon = -np.pi + 2 * np.pi * (col + 0.5) / 64
     # cos is smooth across the seam: linear interpolation error stays below (2 pi / 64)^2 / 8.
     err = np.abs(np.asarray(out)[..., 0] - np.cos(lon + np.pi))[seam]
@@ -236,9 +239,9 @@ def test_colour_variance_is_minimal_at_the_true_distance():
     images = render_sphere(pos, pos[0], radius, size, focal)
     sur_pano, cost = Panorama.hemisphere(64, 256), Panorama.hemisphere(32, 128)
     sur, smask = surrogate_images(rig, jnp.asarray(images), None, sur_pano)
-    coords, valid = sweep_grid(rig, jnp.asarray(G16, jnp.float32), cost, sur_pano)
-    colour, ok = sample_sweep(sur, coords, valid)
-    m, _ = sample_sweep(smask[..., None], coords, valid)
+    coords, valid = sweep_jit(rig, jnp.asarray(G16, jnp.float32), cost, sur_pano)
+    colour, ok = sample_jit(sur, coords, valid)
+    m, _ = sample_jit(smask[..., None], coords, valid)
     ok = np.asarray(ok & (m[..., 0] > 0.5))
     colour = np.asarray(colour, np.float64)
     count = ok.sum(0)

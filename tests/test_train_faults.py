@@ -133,26 +133,19 @@ def test_kill_resume_matches_uninterrupted(script, tmp_path):
     assert any(n.startswith("6.orbax-checkpoint-tmp") for n in ckpts), ckpts   # half-written
     assert "6" not in ckpts and "4" in ckpts                                    # 4 is intact
 
-    # 3) resume to the end
-    r = run_child(script, run, cache=cache)
-    assert r.returncode == 0, r.stderr[-3000:]
-    got = losses(run)
-    assert sorted(got) == [1, 2, 3, 4, 5, 6]
-    for step, values in got.items():
-        # every logged value of every step, including the ones recomputed after a resume
-        np.testing.assert_allclose(values, ref_losses[step][0], rtol=1e-6, atol=0)
-    assert sum(len(v) for v in got.values()) > 6                      # steps were redone
-    assert not any("tmp" in n for n in os.listdir(run / "checkpoints"))
-
-    # 4) corrupt the newest checkpoint: the run falls back to step 4 with a warning
-    state_dir = run / "checkpoints" / "6" / "state"
-    for f in state_dir.rglob("*"):
+    # 3) corrupt the newest complete checkpoint (4), then resume: the run warns, falls back
+    #    to step 2 and trains to the end
+    for f in (run / "checkpoints" / "4" / "state").rglob("*"):
         if f.is_file() and f.stat().st_size > 0 and "manifest" in f.name:
             f.write_bytes(b"\0" * 7)
     r = run_child(script, run, cache=cache)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "unreadable" in r.stderr and "falling back" in r.stderr, r.stderr[-2000:]
-    assert (run / "corrupt" / "checkpoints-6").is_dir()
-    redone = losses(run)
-    np.testing.assert_allclose(redone[5][-1], ref_losses[5][0], rtol=1e-6, atol=0)
-    np.testing.assert_allclose(redone[6][-1], ref_losses[6][0], rtol=1e-6, atol=0)
+    assert (run / "corrupt" / "checkpoints-4").is_dir()
+    got = losses(run)
+    assert sorted(got) == [1, 2, 3, 4, 5, 6]
+    for step, values in got.items():
+        # every logged value of every step, including the ones recomputed after each resume
+        np.testing.assert_allclose(values, ref_losses[step][0], rtol=1e-6, atol=0)
+    assert len(got[3]) >= 2 and len(got[6]) >= 2                      # steps were redone
+    assert sorted(os.listdir(run / "checkpoints")) == ["4", "6"]       # no leftovers

@@ -11,8 +11,8 @@ import pytest
 
 from test_train_faults import CHILD, child_env
 
-# Runs the same 3 training steps (global batch 4) on a mesh of the given devices and saves the
-# final parameters. Modes: 'devices' compares a 1-device and a 4-device mesh in one process;
+# Runs one training step of the volume-loss variant (global batch 4) on a mesh of the given
+# devices and saves the resulting state. Modes: 'devices' compares a 1-device and a 4-device mesh in one process;
 # 'dist' is one of two processes joined by jax.distributed.initialize (2 devices each).
 PARALLEL = CHILD.split('if __name__ == "__main__":')[0] + r'''
 import jax, sys
@@ -26,7 +26,8 @@ def train(run, devices):
     from gijax.train.config import TrainConfig
     from gijax.train.sources import array_stream_factory
     from gijax.train.trainer import Trainer
-    cfg = TrainConfig(preset="E8-cpu", model_overrides=TINY, lr=1e-3, batch_size=4, steps=1,
+    cfg = TrainConfig(preset="E8-cpu", model_overrides=dict(TINY, loss="volume"), lr=1e-3,
+                      batch_size=4, steps=1,
                       ckpt_every=0, val_every=0, keep_best=False, candidates=CANDIDATES)
     t = Trainer(cfg, run, tiny_rig(), array_stream_factory(tiny_arrays(8), 4, 0), progress=False,
                 devices=devices)

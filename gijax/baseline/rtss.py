@@ -59,6 +59,9 @@ class RTSSConfig:
       filter_alpha: share of the coarser level in every up-blend of the pyramid.
       stitch_samples: march steps when resampling a reference map to the panorama.
       fill_iterations: 3x3 hole-filling passes on the panorama.
+      normalize_gain: scale each camera's matching view per channel so that its mean colour
+        over valid pixels equals the mean over all cameras (cameras with different gain or
+        white balance would otherwise never match under an absolute-difference cost).
     """
 
     name: str = "RS-E32"
@@ -76,6 +79,7 @@ class RTSSConfig:
     filter_alpha: float = 0.5
     stitch_samples: int = 96
     fill_iterations: int = 2
+    normalize_gain: bool = True
 
     def __post_init__(self):
         if self.candidates not in ("ev", "gi"):
@@ -134,6 +138,15 @@ def _check_inputs(rig: Rig, images, masks, candidates, config: RTSSConfig):
     if not refs or any(not 0 <= r < n for r in refs):
         raise ValueError(f"RTSSConfig.references {config.references} must name cameras 0..{n - 1}")
     return refs
+
+
+def _normalize_gain(view_images, view_masks):
+    """Per-camera, per-channel gain so every view's valid mean colour equals the common mean."""
+    means = [jnp.sum(im * m[..., None], (0, 1)) / jnp.maximum(jnp.sum(m), 1.0)
+             for im, m in zip(view_images, view_masks)]
+    target = jnp.mean(jnp.stack(means), 0)
+    return [jnp.clip(im * (target / jnp.maximum(mu, 1e-3)), 0.0, 1.0)
+            for im, mu in zip(view_images, means)]
 
 
 def _stack_padded(arrays):
@@ -199,6 +212,8 @@ def _rtss(rig, images, masks, candidates, pano, config):
                  for i in range(rig.num_cameras)]
         view_images = [v[0] for v in views]
         view_masks = [v[1] for v in views]
+    if config.normalize_gain:
+        view_images = _normalize_gain(view_images, view_masks)
     sizes = [v.shape[:2] for v in view_images]
     if is_homogeneous(rig) and len(set(sizes)) == 1:
         # One compiled body mapped over the reference cameras (compile time and memory do

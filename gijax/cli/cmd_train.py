@@ -113,13 +113,14 @@ def run(args) -> int:
     make_stream = dataset_stream_factory(reader, rig, cfg.batch_size, cfg.seed, mc.surrogate_hw,
                                          mask_augmentation=mc.mask_augmentation,
                                          workers=cfg.workers)
-    make_val = None
+    make_val, val_rig = None, None
     if args.val:
         val_reader = open_dataset(args.val, "validation")
         make_val = lambda: validation_batches(val_reader, val_reader.rig, cfg.batch_size,  # noqa: E731
                                               mc.surrogate_hw, cfg.val_batches)
+        val_rig = val_reader.rig
     trainer = Trainer(cfg, args.out, rig, make_stream, make_val, rig_name=args.rig or str(args.data),
-                      progress=not args.no_progress)
+                      progress=not args.no_progress, val_rig=val_rig)
     try:
         history = trainer.fit()
     finally:

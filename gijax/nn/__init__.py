@@ -5,7 +5,7 @@ regressor, and the model presets."""
 from gijax.nn.build import NetworkParts, count_parameters, make_cost_volume, make_unet
 from gijax.nn.cost_volume import ConcatCostVolume, VarianceCostVolume, masked_variance
 from gijax.nn.features import FeatureExtractor
-from gijax.nn.layers import param_count
+from gijax.nn.layers import Conv3D, conv3d_mode, param_count
 from gijax.nn.presets import PRESETS, REFERENCE_PARAM_COUNTS, ModelConfig, get_preset
 from gijax.nn.regressor import regress
 from gijax.nn.spherical import SphericalConv, tangent_offsets
@@ -16,12 +16,14 @@ __all__ = [
     "PRESETS",
     "REFERENCE_PARAM_COUNTS",
     "ConcatCostVolume",
+    "Conv3D",
     "FeatureExtractor",
     "ModelConfig",
     "NetworkParts",
     "SphericalConv",
     "UNet3D",
     "VarianceCostVolume",
+    "conv3d_mode",
     "count_parameters",
     "get_preset",
     "make_cost_volume",

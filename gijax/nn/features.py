@@ -41,9 +41,10 @@ class FeatureExtractor(nnx.Module):
         c = config.feature_channels
         self.spherical = config.features == "spherical"
         self.stem = ConvBN(3, c, 5, 2, rngs, stride=2)
-        self.blocks1 = nnx.List([ResidualBlock(c, 2, rngs) for _ in range(config.feature_blocks[0])])
+        n1, n2 = config.feature_blocks
+        self.blocks1 = nnx.List([ResidualBlock(c, 2, rngs) for _ in range(n1)])
         self.down = conv(c, c, 3, 2, 2, rngs)
-        self.blocks2 = nnx.List([ResidualBlock(c, 2, rngs) for _ in range(config.feature_blocks[1])])
+        self.blocks2 = nnx.List([ResidualBlock(c, 2, rngs) for _ in range(n2)])
         if self.spherical:
             self.last = SphericalConv(c, c, *config.feature_hw, rngs=rngs)
         else:

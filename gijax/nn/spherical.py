@@ -26,8 +26,9 @@ where the longitude is measured about the polar axis. Taking lon = 0 without los
 ``q = (cos lat - i tan(dlat) sin lat, j tan(dlon), sin lat + i tan(dlat) cos lat)``, and the
 offsets in pixels are ``d_row = (lat_ij - lat) / dlat``, ``d_col = lon_ij / dlon``.
 
-* At the equator (lat = 0) the edge taps are exactly one pixel away and the corner taps
-  ``atan(tan d / sqrt(1 + tan^2 d))``-style close to it: the plain 3x3 grid up to O(d^3).
+* At the equator (lat = 0), with t = tan(d) for square pixels d = dlat = dlon: the edge taps
+  land exactly one pixel away (atan(t) = d); a corner tap is q = (1, t, t), i.e. one column
+  away exactly and asin(t / sqrt(1 + 2 t^2)) / d = 1 - O(d^2) rows away: the plain 3x3 grid.
 * For the side taps (i = 0): ``lon = atan(tan(dlon) / cos(lat))`` and
   ``lat' = asin(sin(lat) cos(dlon))``: the kernel widens in longitude by about 1 / cos(lat).
 * Near the pole a tap with i = -1 crosses the pole: its latitude stays above -90 deg and its

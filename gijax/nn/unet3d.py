@@ -13,7 +13,7 @@ step                                                        output              
 cost volume                                                 B x 16 x 80 x 320 x 48
 down1: conv s2 (48 -> f) + BN + LReLU, 3 residual blocks    B x 8 x 40 x 160 x 96         1.62 M
 down2: conv s2 (f -> 2f) + BN + LReLU, 3 residual blocks    B x 4 x 20 x 80 x 192         6.47 M
-down3: conv s2 (2f -> 4f) + BN + LReLU, 3 residual blocks   B x 2 x 10 x 40 x 384         25.89 M
+down3: conv s2 (2f -> 4f) + BN + LReLU, 3 residual blocks   B x 2 x 10 x 40 x 384         25.88 M
 up3: upsample x2, conv (4f -> 2f) + BN, + down2, LReLU      B x 4 x 20 x 80 x 192         1.99 M
 up2: upsample x2, conv (2f -> f) + BN, + down1, LReLU       B x 8 x 40 x 160 x 96         0.50 M
 up1: upsample x2, conv (f -> in) + BN, + cost volume, LReLU B x 16 x 80 x 320 x 48        0.12 M

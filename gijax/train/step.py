@@ -133,7 +133,7 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
         updates, opt = tx.update(grads, state["opt"], params)
         params = optax.apply_updates(params, updates)
         new_state = {"params": params, "rest": rest, "opt": opt, "step": state["step"] + 1}
-        return new_state, {"loss": loss, "grad_norm": optax.global_norm(grads)}
+        return new_state, {"loss": loss, "grad_norm": optax.tree.norm(grads)}
 
     return step
 

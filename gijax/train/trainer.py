@@ -85,17 +85,20 @@ class Trainer:
       rig_name: recorded in the run config.
       progress: show a tqdm progress bar.
       devices: devices of the data-parallel mesh (default: all devices of all processes).
+      val_rig: the validation data's rig (default: the training rig).
     """
 
     def __init__(self, config: TrainConfig, run_dir, rig: Rig, make_train_stream: Callable,
                  make_val_batches: Optional[Callable[[], Iterable[dict]]] = None,
-                 rig_name: str = "", progress: bool = True, devices=None):
+                 rig_name: str = "", progress: bool = True, devices=None,
+                 val_rig: Optional[Rig] = None):
         from gijax.model import create_model
 
         self.config = config
         self.mc = config.model_config()
         self.run_dir = Path(run_dir)
         self.rig = model_rig(rig)
+        self.val_rig = self.rig if val_rig is None else model_rig(val_rig)
         self.make_train_stream = make_train_stream
         self.make_val_batches = make_val_batches
         self.progress = progress
@@ -203,7 +206,7 @@ class Trainer:
         if params is None:
             params, rest = self.local_variables()
         return self._eval(params, rest, jnp.asarray(batch["images"], jnp.float32),
-                          jnp.asarray(batch["masks"], jnp.float32), self.rig, self._cand)
+                          jnp.asarray(batch["masks"], jnp.float32), self.val_rig, self._cand)
 
     def validate(self, step: int) -> Optional[dict]:
         """Metrics over the validation set (None without one); writes sample images."""
