@@ -125,7 +125,7 @@ def _np_variance(f: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=20, deadline=None)
 @given(n=st.integers(2, 4), seed=st.integers(0, 10_000), p_valid=st.floats(0.2, 1.0))
 def test_masked_variance_matches_numpy(n, seed, p_valid):
     rng = np.random.default_rng(seed)
@@ -290,13 +290,15 @@ def test_regress_matches_numpy_reference():
     np.testing.assert_allclose(np.asarray(out["distance"]), 1 / inv, rtol=1e-5)
     np.testing.assert_allclose(np.asarray(out["entropy"]), ent, rtol=1e-4, atol=1e-6)
     assert out["inv_distance"].shape == (2, 6, 10) and out["prob"].shape == (2, 8, 6, 10)
-    # A confident one-hot pick returns that candidate; a flat one has entropy log D.
-    hot = np.full((1, 8, 1, 1), -50.0)
-    hot[0, 5] = 50.0
-    r = regress(jnp.asarray(hot, jnp.float32), jnp.asarray(cand, jnp.float32), (2, 2))
-    np.testing.assert_allclose(np.asarray(r["distance"]), cand[5], rtol=1e-5)
-    flat = regress(jnp.zeros((1, 8, 1, 1)), jnp.asarray(cand, jnp.float32), (2, 2))
-    np.testing.assert_allclose(np.asarray(flat["entropy"]), math.log(8), rtol=1e-6)
+    # A confident one-hot pick returns that candidate; a flat one has entropy log D (same
+    # shapes as above: no new compilation).
+    hot = np.full((2, 8, 3, 5), -50.0)
+    hot[:, 5] = 50.0
+    hot[1] = 0.0
+    r = regress(jnp.asarray(hot, jnp.float32), jnp.asarray(cand, jnp.float32), (6, 10))
+    np.testing.assert_allclose(np.asarray(r["distance"][0]), cand[5], rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(r["entropy"][1]), math.log(8), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(r["inv_distance"][1]), np.mean(1 / cand), rtol=1e-5)
     with pytest.raises(ValueError, match="output_hw"):
         regress(jnp.zeros((1, 8, 3, 5)), jnp.asarray(cand), (3, 5))
     with pytest.raises(ValueError, match="candidates"):

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import tempfile
 from pathlib import Path
@@ -102,6 +103,9 @@ def _input_specs(cfg, rig: Rig, batch, rig_as_input: bool):
     return specs
 
 
+_grids_jit = jax.jit(inference_grids, static_argnums=2)
+
+
 def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: bool):
     """The exported function: positional inputs in the order of the module docstring, a tuple
     of :data:`OUTPUTS`. ``rig`` is at the model's image size; ``model`` in eval mode."""
@@ -110,7 +114,7 @@ def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: boo
         cand = jnp.asarray(candidates, jnp.float32)
         # Evaluated once, eagerly: the engine receives the grids as constants.
         grids = jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)),
-                                       inference_grids(rig, cand, cfg))
+                                       _grids_jit(rig, cand, cfg))
 
         def fn(images, masks):
             out = forward_from_grids(model, images, masks, grids, cand)
@@ -162,6 +166,9 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     fn = build_function(view, run_rig, candidates, rig_as_input)
     specs = _input_specs(cfg, run_rig, "B" if dynamic_batch else int(batch), rig_as_input)
     names = list(specs)
+    quiet = logging.getLogger("onnx_ir")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # per-constant serialisation notes are not actionable
     try:
         with conv3d_mode("native"):  # one Conv node per 3-D convolution
             proto = to_onnx(fn, list(specs.values()), opset=opset, model_name=f"gijax_{cfg.name}",
@@ -170,6 +177,7 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
         # jax2onnx swaps primitives while tracing; jitted functions traced meanwhile must not
         # be reused by later JAX calls in this process.
         jax.clear_caches()
+        quiet.setLevel(level)
     legalise(proto)
     metadata = export_metadata(cfg, run_rig, candidates, rig_as_input, dynamic_batch)
     metadata.update({k: str(v) for k, v in (extra_metadata or {}).items()})
