@@ -97,7 +97,8 @@ def test_occluder_margin_sign_matches_ray_cylinder_hits():
 
 def test_hard_coverage_matches_rig_projection_and_masks():
     """The 0/1 limit of the surrogate equals what the rig's own projection and occlusion masks
-    say: a ray counts when two cameras see its swept points at every sample distance."""
+    say: a ray counts when two cameras see its swept points at every sample distance and the
+    swept segment keeps d_min / 2 away from the lens."""
     from gijax.design import layout_rig
     from gijax.geometry.panorama import lonlat_grid, ray_grid
     from gijax.geometry.rig import project_rig_points
@@ -115,6 +116,12 @@ def test_hard_coverage_matches_rig_projection_and_masks():
     pts = np.asarray(rig.reference) + ds[:, None, None] * rays[None]
     _, ok = project_rig_points(rig, jnp.asarray(pts, jnp.float32))
     seen = np.asarray(ok).all(axis=1)  # (C, R)
+    # Closest approach of the swept segment to each camera centre, by dense sampling.
+    dense = spec.d_min * (spec.d_max / spec.d_min) ** np.linspace(0, 1, 4000)
+    sweep = np.asarray(rig.reference) + dense[:, None, None] * rays[None]  # (D, R, 3)
+    t = np.asarray(rig.translations)
+    closest = np.linalg.norm(sweep[None] - t[:, None, None], axis=-1).min(axis=1)  # (C, R)
+    seen &= closest >= 0.5 * spec.d_min
     want = float(np.sum(w * (seen.sum(0) >= 2)) / w.sum())
     assert 0.3 < want < 1.0  # the tilts and the occluder make this a real test
     assert got == pytest.approx(want, abs=1.5 / rays.shape[0])
@@ -162,7 +169,7 @@ def test_penalty_terms_tilt_height_and_slack():
     high = make_layout(positions=base["positions"], heights=[0.13, 0.05])
     assert float(violations(high, spec)["height"][0]) == pytest.approx(0.03, abs=1e-6)
     # Slack tightens the separation: 0.2 m apart is feasible, but not with 5 mm of slack.
-    close = make_layout([[0.1, 0.3], [-0.1, 0.3]])
+    close = make_layout([[0.1, 0.3], [-0.1, 0.3]], heights=[0.05, 0.05])
     assert float(penalty(close, spec)) == 0.0
     assert float(penalty(close, spec, slack=0.005)) == pytest.approx(0.005 ** 2, rel=1e-3)
 

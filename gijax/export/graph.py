@@ -129,7 +129,9 @@ def forward_from_grids(model: OmniStereoNet, images: Array, masks: Array, grids:
     logits = model.unet(volume)
     out = regress(logits, candidates.astype(dtype), cfg.output_hw)
     needed = 2 if cfg.cost_volume == "variance" else n
-    cell_ok = jnp.all(jnp.sum(cam_valid.astype(jnp.int32), axis=1) >= needed, axis=1)
+    # Float reductions: TensorRT reduces float tensors only (no integer / boolean ReduceSum).
+    seen_by = jnp.min(jnp.sum(cam_valid.astype(dtype), axis=1), axis=1)   # (B, hc, wc)
+    cell_ok = seen_by >= needed
     fy, fx = cfg.output_hw[0] // cfg.cost_hw[0], cfg.output_hw[1] // cfg.cost_hw[1]
     valid = jnp.repeat(jnp.repeat(cell_ok, fy, axis=1), fx, axis=2)
     return {"inv_distance": out["inv_distance"], "distance": out["distance"],
