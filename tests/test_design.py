@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from gijax.design import (DesignSpec, at_least_two, constraint_report, is_feasible,
-                          make_layout, objective_terms, occluder_margin, optimize_layout,
-                          penalty, regular_layout, violations)
+from gijax.design import (DesignSpec, at_least_two, constraint_report, evaluate_layouts,
+                          is_feasible, layout_rig, make_layout, objective_terms,
+                          occluder_margin, optimize_layout, penalty, random_layouts,
+                          regular_layout, stack_layouts, violations)
 from gijax.geometry.occluder import FAR, Cylinder, cylinder_hit
 from gijax.geometry.panorama import Panorama
 
@@ -95,52 +96,25 @@ def test_occluder_margin_sign_matches_ray_cylinder_hits():
     np.testing.assert_array_equal(margin[clear] < 0, blocked[clear])
 
 
-def test_hard_coverage_matches_rig_projection_and_masks():
-    """The 0/1 limit of the surrogate equals what the rig's own projection and occlusion masks
-    say: a ray counts when two cameras see its swept points at every sample distance and the
-    swept segment keeps d_min / 2 away from the lens."""
-    from gijax.design import layout_rig
-    from gijax.geometry.panorama import lonlat_grid, ray_grid
-    from gijax.geometry.rig import project_rig_points
-
-    spec = DesignSpec(num_cameras=3, pano=Panorama.hemisphere(6, 12), num_candidates=8,
-                      samples=3, orientations=True, camera_size=256, focal=75.0)
-    lay = make_layout([[0.3, 0.0], [-0.2, 0.3], [-0.1, -0.35]],
-                      rotvecs=[[0.0, 0.5, 0.0], [0.3, 0.0, 0.0], [0.0, 0.0, 0.0]])
-    got = float(jax.jit(objective_terms, static_argnames="spec")(lay, spec)["hard_coverage"])
-    rig = layout_rig(lay, spec)
-    rays = np.asarray(ray_grid(spec.pano)).reshape(-1, 3)
-    _, lat = lonlat_grid(spec.pano)
-    w = np.cos(np.asarray(lat)).reshape(-1)
-    ds = spec.d_min * (spec.d_max / spec.d_min) ** np.linspace(0, 1, spec.samples)
-    pts = np.asarray(rig.reference) + ds[:, None, None] * rays[None]
-    _, ok = project_rig_points(rig, jnp.asarray(pts, jnp.float32))
-    seen = np.asarray(ok).all(axis=1)  # (C, R)
-    # Closest approach of the swept segment to each camera centre, by dense sampling.
-    dense = spec.d_min * (spec.d_max / spec.d_min) ** np.linspace(0, 1, 4000)
-    sweep = np.asarray(rig.reference) + dense[:, None, None] * rays[None]  # (D, R, 3)
-    t = np.asarray(rig.translations)
-    closest = np.linalg.norm(sweep[None] - t[:, None, None], axis=-1).min(axis=1)  # (C, R)
-    seen &= closest >= 0.5 * spec.d_min
-    want = float(np.sum(w * (seen.sum(0) >= 2)) / w.sum())
-    assert 0.3 < want < 1.0  # the tilts and the occluder make this a real test
-    assert got == pytest.approx(want, abs=1.5 / rays.shape[0])
-
-
 # ---------------------------------------------------------------- constraints
 
-def _brute_force_feasible(xy, spec):
+def _worst_violation(xy, spec):
+    """Largest constraint violation of the positions, metres (<= 0: feasible), by brute force."""
     xy = np.asarray(xy, np.float64)
     h = spec.half_size
-    inside = (np.all(np.abs(xy) <= h) if spec.shape == "square"
-              else np.all(np.linalg.norm(xy, axis=1) <= h))
-    d = [np.linalg.norm(a - b) for a, b in itertools.combinations(xy, 2)]
-    sep = min(d) >= spec.min_separation
-    occ = np.all(np.linalg.norm(xy, axis=1) >= spec.occluder_radius + spec.occluder_clearance)
-    return bool(inside and sep and occ)
+    out = (np.abs(xy).max() - h) if spec.shape == "square" else (np.linalg.norm(xy, axis=1).max()
+                                                                 - h)
+    d = min(np.linalg.norm(a - b) for a, b in itertools.combinations(xy, 2))
+    occ = np.linalg.norm(xy, axis=1).min()
+    return max(out, spec.min_separation - d,
+               spec.occluder_radius + spec.occluder_clearance - occ)
 
 
-@settings(max_examples=40, deadline=None)
+def _brute_force_feasible(xy, spec):
+    return _worst_violation(xy, spec) <= 0.0
+
+
+@settings(max_examples=25, deadline=None)
 @given(st.sampled_from(["square", "disc"]), st.integers(2, 5), st.data())
 def test_penalty_is_zero_exactly_for_feasible_layouts(shape, n, data):
     spec = DesignSpec(num_cameras=n, shape=shape, orientations=False, footprint=1.0)
@@ -149,12 +123,13 @@ def test_penalty_is_zero_exactly_for_feasible_layouts(shape, n, data):
     with jax.enable_x64(True):
         lay = make_layout(xy, dtype=jnp.float64)
         pen = float(penalty(lay, spec))
-        feasible = _brute_force_feasible(xy, spec)
-        assert is_feasible(lay, spec) == feasible
-        if feasible:
-            assert pen == 0.0
+        worst = _worst_violation(xy, spec)
+        if worst <= 0.0:
+            assert pen == 0.0 and is_feasible(lay, spec)
         else:
             assert pen > 0.0
+        if worst > 1e-9:  # is_feasible allows rounding-level violations (1e-9 m)
+            assert not is_feasible(lay, spec)
 
 
 def test_penalty_terms_tilt_height_and_slack():
@@ -188,7 +163,12 @@ def test_spec_rejects_bad_values():
 @pytest.fixture(scope="module")
 def optimised():
     spec = DesignSpec(num_cameras=3, max_tilt_deg=15.0, **SMALL)
-    return spec, optimize_layout(spec, starts=3, steps=25, seed=3, lr=0.05, progress=False)
+    # Start 0 is the regular layout of the footprint, the others are random.
+    starts = random_layouts(jax.random.PRNGKey(3), spec, 3)
+    regular = regular_layout(spec)
+    starts = jax.tree_util.tree_map(lambda s, r: s.at[0].set(r), starts, regular)
+    res = optimize_layout(spec, steps=25, lr=0.05, init=starts, progress=False)
+    return spec, res
 
 
 def test_optimisation_improves_every_start(optimised):
@@ -214,7 +194,39 @@ def test_optimised_layout_satisfies_constraints(optimised):
 
 def test_optimised_beats_the_regular_layout_of_the_footprint(optimised):
     """Three cameras in a 1 m square: the centred equilateral triangle that fits (side 0.87 m)
-    is not the best use of the square, and the optimiser finds a better layout."""
+    is not a stationary point of the objective; the optimiser improves on it."""
     spec, res = optimised
-    f = jax.jit(objective_terms, static_argnames="spec")
-    assert res.best_terms["objective"] < float(f(regular_layout(spec), spec)["objective"])
+    regular = evaluate_layouts(stack_layouts([regular_layout(spec)]), spec, 3)
+    assert res.history[0, 0] == pytest.approx(float(regular["total"][0]), rel=1e-5)
+    assert res.best_terms["objective"] < 0.97 * float(regular["objective"][0])
+
+
+def test_hard_coverage_matches_rig_projection_and_masks(optimised):
+    """The 0/1 limit of the surrogate equals what the rig's own projection and occlusion masks
+    say: a ray counts when two cameras see its swept points at every sample distance and the
+    swept segment keeps d_min / 2 away from the lens."""
+    from gijax.geometry.panorama import lonlat_grid, ray_grid
+    from gijax.geometry.rig import project_rig_points
+
+    spec, _ = optimised
+    lay = make_layout([[0.3, 0.0], [-0.2, 0.3], [-0.1, -0.35]],
+                      rotvecs=[[0.0, 0.6, 0.0], [0.0, 0.6, 0.0], [0.0, 0.0, 0.0]])
+    # Same spec and batch as the optimiser's final evaluation: no new compilation.
+    got = float(evaluate_layouts(stack_layouts([lay]), spec, 3)["hard_coverage"][0])
+    rig = layout_rig(lay, spec, image_scale=0.25)
+    rays = np.asarray(ray_grid(spec.pano)).reshape(-1, 3)
+    _, lat = lonlat_grid(spec.pano)
+    w = np.cos(np.asarray(lat)).reshape(-1)
+    ds = spec.d_min * (spec.d_max / spec.d_min) ** np.linspace(0, 1, spec.samples)
+    pts = np.asarray(rig.reference) + ds[:, None, None] * rays[None]
+    _, ok = project_rig_points(rig, jnp.asarray(pts, jnp.float32))
+    seen = np.asarray(ok).all(axis=1)  # (C, R)
+    # Closest approach of the swept segment to each camera centre, by dense sampling.
+    dense = spec.d_min * (spec.d_max / spec.d_min) ** np.linspace(0, 1, 4000)
+    sweep = np.asarray(rig.reference) + dense[:, None, None] * rays[None]  # (D, R, 3)
+    t = np.asarray(rig.translations)
+    closest = np.linalg.norm(sweep[None] - t[:, None, None], axis=-1).min(axis=1)  # (C, R)
+    seen &= closest >= 0.5 * spec.d_min
+    want = float(np.sum(w * (seen.sum(0) >= 2)) / w.sum())
+    assert 0.3 < want < 1.0  # the tilts and the occluder make this a real test
+    assert got == pytest.approx(want, abs=1.5 / rays.shape[0])

@@ -250,3 +250,11 @@ def objective(layout: Layout, spec: DesignSpec) -> Array:
 def batch_objective_terms(layouts: Layout, spec: DesignSpec) -> dict:
     """:func:`objective_terms` of a batch of layouts (leading axis), jitted."""
     return jax.vmap(lambda lay: objective_terms(lay, spec))(layouts)
+
+
+def camera_counts(layout: Layout, spec: DesignSpec) -> Array:
+    """(H, W) number of cameras that see each ray of ``spec.pano`` (0/1 visibility, the same
+    test as ``hard_coverage``), for plots."""
+    fov_m, occ_m, clr_m, *_ = _margins(layout, spec)
+    v = _visibility(fov_m, occ_m, clr_m, spec, hard=True)
+    return jnp.sum(v, axis=0).reshape(spec.pano.height, spec.pano.width)

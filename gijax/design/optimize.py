@@ -254,21 +254,26 @@ def grid_search(spec: DesignSpec, evaluations: int, batch: int = 8,
     """Exhaustive search over camera placements on a lattice, within an evaluation budget.
 
     Every camera sits on a point of the finest ``g x g`` lattice (edges included) for which the
-    number of ways to place the cameras on distinct points, ``C(M, N)``, fits the budget; all
-    such placements are evaluated with the cameras looking along +z at z = 0 (the grid does not
+    number of ways to place the cameras on distinct points, ``C(M, N)``, fits the budget (if
+    even the coarsest lattice holding N points has more, evenly spaced placements in
+    enumeration order up to the budget); the placements are evaluated with the cameras looking along +z at z = 0 (the grid does not
     search orientations or heights: their dimension would leave at most a handful of values per
     axis). Returns the keys of :func:`random_search` plus ``per_side`` and ``points``.
     """
     t0 = time.perf_counter()
     n = spec.num_cameras
     g = 2
+    while len(grid_points(spec, g)) < n:
+        g += 1
     while math.comb(len(grid_points(spec, g + 1)), n) <= evaluations:
         g += 1
     pts = grid_points(spec, g)
-    if math.comb(len(pts), n) > evaluations or len(pts) < n:
-        raise ValueError(f"an evaluation budget of {evaluations} cannot place {n} cameras on "
-                         f"the coarsest lattice ({len(pts)} points)")
     combos = np.asarray(list(itertools.combinations(range(len(pts)), n)))
+    if len(combos) > evaluations:
+        # Even the coarsest lattice that holds the cameras has more placements than the
+        # budget: take evenly spaced ones in enumeration order.
+        combos = combos[np.unique(np.linspace(0, len(combos) - 1, evaluations).round()
+                                  .astype(int))]
     lays = Layout(jnp.asarray(pts[combos], dtype), jnp.zeros((len(combos), n), dtype),
                   jnp.zeros((len(combos), n, 3), dtype))
     vals = evaluate_layouts(lays, spec, batch)["total"]

@@ -36,6 +36,7 @@ import json
 import logging
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 import jax
@@ -170,7 +171,8 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # per-constant serialisation notes are not actionable
     try:
-        with conv3d_mode("native"):  # one Conv node per 3-D convolution
+        with conv3d_mode("native"), warnings.catch_warnings():  # one Conv per 3-D conv
+            warnings.simplefilter("ignore", DeprecationWarning)  # jax2onnx's flax accessors
             proto = to_onnx(fn, list(specs.values()), opset=opset, model_name=f"gijax_{cfg.name}",
                             input_names=names, output_names=list(OUTPUTS))
     finally:

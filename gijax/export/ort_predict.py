@@ -56,20 +56,16 @@ def rig_feed(run_rig, candidates) -> dict:
     return arrays
 
 
-class OnnxPredictor:
-    """An exported model: ``predict(rig, images, masks=None, candidates=None) -> dict``.
+class ExportInfo:
+    """What a gijax ONNX file's metadata says (image size, cameras, mode, default candidates)
+    and how to turn one sample into its input feed; shared by onnxruntime and TensorRT runs."""
 
-    Args:
-      path: the ``.onnx`` file.
-      providers: onnxruntime execution providers; default CUDA where available, else CPU.
-      threads: intra-op threads (default: onnxruntime's choice).
-    """
-
-    def __init__(self, path: str | os.PathLike, providers=None, threads: int | None = None):
+    def __init__(self, path: str | os.PathLike):
         import onnx
 
         self.path = str(path)
-        self.session = make_session(self.path, providers, threads)
+        if not Path(self.path).is_file():
+            raise FileNotFoundError(f"{self.path}: no such ONNX file")
         self.meta = read_metadata(onnx.load(self.path, load_external_data=False))
         if "config" not in self.meta:
             raise ValueError(f"{self.path}: not a gijax export (no gijax metadata)")
@@ -79,14 +75,9 @@ class OnnxPredictor:
         self.num_cameras = int(self.meta["num_cameras"])
         self.image_hw = tuple(json.loads(self.meta["image_hw"]))
         self.image_scale = float(self.meta.get("image_scale", "1.0"))
-        first = self.session.get_inputs()[0]
-        self.batch = first.shape[0] if isinstance(first.shape[0], int) else None
 
-    @property
-    def providers(self) -> list[str]:
-        return self.session.get_providers()
-
-    def _scaled_rig(self, rig):
+    def scaled_rig(self, rig):
+        """``rig`` at the exported image size (scaled by the model's image scale if needed)."""
         from gijax.geometry.rig import scale_rig
 
         cam = rig.cameras[0]
@@ -100,7 +91,13 @@ class OnnxPredictor:
                              f"{scaled.cameras[0].height} x {scaled.cameras[0].width})")
         return scaled
 
-    def _inputs(self, rig, images, masks):
+    def feed(self, rig, images, masks=None, candidates=None, batch: int | None = 1):
+        """(input feed for one sample repeated to ``batch``, candidates used).
+
+        ``images`` (N, h, w, 3) uint8 or float RGB in [0, 1] at the rig's size or the exported
+        size; ``masks`` (N, h, w) or None for the rig's own masks; ``candidates`` (D,) metres,
+        only selectable for rig-as-input files (default: the exported list).
+        """
         import cv2
 
         images = np.asarray(images)
@@ -110,48 +107,38 @@ class OnnxPredictor:
         if images.shape[0] != self.num_cameras or rig.num_cameras != self.num_cameras:
             raise ValueError(f"{self.path} was exported for {self.num_cameras} cameras; found "
                              f"{images.shape[0]} images and a rig with {rig.num_cameras}")
-        run_rig = self._scaled_rig(rig)
+        run_rig = self.scaled_rig(rig)
         h, w = self.image_hw
         if masks is None:
             masks = np.stack([np.ones((h, w), np.float32) if m is None else np.asarray(m)
                               for m in run_rig.masks])
         masks = np.asarray(masks, np.float32)
-        if masks.shape != images.shape[:3]:
-            raise ValueError(f"masks must have shape {images.shape[:3]}; found {masks.shape}")
         if images.shape[1:3] != (h, w):
             if images.shape[1:3] != (rig.cameras[0].height, rig.cameras[0].width):
                 raise ValueError(f"images must be {h} x {w} or the rig's {rig.cameras[0].height}"
                                  f" x {rig.cameras[0].width}; found {images.shape[1:3]}")
             images = np.stack([cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)
                                for im in images])
-            masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA)
-                              for m in masks])
+            if masks.shape[1:3] != (h, w):
+                masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA)
+                                  for m in masks])
+        if masks.shape != images.shape[:3]:
+            raise ValueError(f"masks must have shape {images.shape[:3]}; found {masks.shape}")
         if np.issubdtype(images.dtype, np.integer):
             images = images.astype(np.float32) / 255.0
-        return run_rig, images.astype(np.float32), masks
-
-    def predict(self, rig, images, masks=None, candidates=None) -> dict:
-        """One sample: ``images`` (N, h, w, 3) uint8 or float RGB in [0, 1] at the rig's size or
-        at the model's image size; ``masks`` (N, h, w) or None for the rig's own masks;
-        ``candidates`` (D,) metres (rig-as-input files only; default: the exported list).
-
-        Returns numpy ``inv_distance``, ``distance``, ``entropy`` (H, W), ``valid`` (H, W) bool
-        and ``candidates``.
-        """
-        run_rig, images, masks = self._inputs(rig, images, masks)
-        feed = {IMAGES: images[None], MASKS: masks[None]}
-        if self.batch not in (None, 1):
-            feed = {k: np.repeat(v, self.batch, axis=0) for k, v in feed.items()}
+        feed = {IMAGES: images.astype(np.float32)[None], MASKS: masks[None]}
+        if batch not in (None, 1):
+            feed = {k: np.repeat(v, batch, axis=0) for k, v in feed.items()}
         cand = self.candidates
         if candidates is not None:
             cand = np.asarray(candidates, np.float64)
+            if cand.shape != self.candidates.shape:
+                raise ValueError(f"{self.path} needs {len(self.candidates)} candidates; found "
+                                 f"shape {cand.shape}")
             if not self.rig_as_input and not np.allclose(cand, self.candidates, rtol=1e-6):
                 raise ValueError(f"{self.path} has its candidates baked in "
                                  f"({np.round(self.candidates, 4).tolist()} m); export with "
                                  f"--rig-as-input to choose candidates at run time")
-            if cand.shape != self.candidates.shape:
-                raise ValueError(f"{self.path} needs {len(self.candidates)} candidates; found "
-                                 f"{cand.shape}")
         if self.rig_as_input:
             layout = json.loads(self.meta["intrinsics_layout"])
             if list(intrinsics_layout(run_rig)) != layout:
@@ -159,8 +146,41 @@ class OnnxPredictor:
                                  f"{layout}; the rig's cameras have "
                                  f"{list(intrinsics_layout(run_rig))}")
             feed.update(rig_feed(run_rig, cand))
-        names = [o.name for o in self.session.get_outputs()]
-        got = dict(zip(names, self.session.run(names, feed)))
+        return feed, cand
+
+
+class OnnxPredictor:
+    """An exported model: ``predict(rig, images, masks=None, candidates=None) -> dict``.
+
+    Args:
+      path: the ``.onnx`` file.
+      providers: onnxruntime execution providers; default CUDA where available, else CPU.
+      threads: intra-op threads (default: onnxruntime's choice).
+    """
+
+    def __init__(self, path: str | os.PathLike, providers=None, threads: int | None = None):
+        self.info = ExportInfo(path)
+        self.path = self.info.path
+        self.session = make_session(self.path, providers, threads)
+        first = self.session.get_inputs()[0]
+        self.batch = first.shape[0] if isinstance(first.shape[0], int) else None
+
+    @property
+    def providers(self) -> list[str]:
+        return self.session.get_providers()
+
+    @property
+    def candidates(self) -> np.ndarray:
+        return self.info.candidates
+
+    def predict(self, rig, images, masks=None, candidates=None) -> dict:
+        """One sample (see :meth:`ExportInfo.feed` for the arguments).
+
+        Returns numpy ``inv_distance`` (H, W) 1/m, ``distance`` (H, W) m, ``entropy`` (H, W)
+        nats, ``valid`` (H, W) bool and ``candidates`` (D,) metres.
+        """
+        feed, cand = self.info.feed(rig, images, masks, candidates, self.batch)
+        got = self.run_batch(feed)
         out = {k: np.asarray(got[k][0]) for k in OUTPUTS}
         out["valid"] = out["valid"] > 0.5
         out["candidates"] = cand
@@ -172,4 +192,4 @@ class OnnxPredictor:
         return dict(zip(names, self.session.run(names, feed)))
 
 
-__all__ = ["OnnxPredictor", "make_session", "rig_feed", "default_providers", "RIG_INPUTS"]
+__all__ = ["OnnxPredictor", "ExportInfo", "make_session", "rig_feed", "default_providers", "RIG_INPUTS"]

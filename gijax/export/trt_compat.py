@@ -313,12 +313,13 @@ def check_model(model, targets=TARGETS) -> CompatReport:
                 findings.append(Finding(t.key, "error", "(graph)",
                                         f"graph {kind} {io.name!r} has type {dt}, which "
                                         f"{t.label} does not take at the network boundary"))
-            dims = io.type.tensor_type.shape.dim
-            if any(d.dim_param or not d.HasField("dim_value") for d in dims):
-                findings.append(Finding(t.key, "warning", "(graph)",
-                                        f"graph {kind} {io.name!r} has a dynamic dimension: "
-                                        f"build with an optimisation profile (--minShapes/"
-                                        f"--optShapes/--maxShapes)"))
+        dynamic = [v.name for v in list(g.input) + list(g.output)
+                   if any(d.dim_param or not d.HasField("dim_value")
+                          for d in v.type.tensor_type.shape.dim)]
+        if dynamic:
+            findings.append(Finding(t.key, "warning", "(graph)",
+                                    f"dynamic dimensions in {', '.join(dynamic)}: build with an "
+                                    f"optimisation profile (--minShapes/--optShapes/--maxShapes)"))
     wide = {name for name, dt in ctx.dtypes.items() if dt in ("i64", "f64")}
     op_counts, op_dtypes = Counter(), defaultdict(set)
     wide_ops = defaultdict(Counter)

@@ -23,8 +23,7 @@ import numpy as np
 from gijax.geometry.rig import Rig
 from gijax.train import step as S
 from gijax.train.checkpoints import CheckpointStore
-from gijax.train.config import (CONFIG_FILE, TrainConfig, load_run_config, save_run_config,
-                                write_json_atomic)
+from gijax.train.config import CONFIG_FILE, TrainConfig, load_run_config, save_run_config
 from gijax.train.metrics import batch_sums, summarize
 
 METRICS_FILE = "metrics.jsonl"
@@ -322,8 +321,6 @@ def load_for_inference(run_dir, which: str = "best"):
     periodic checkpoint otherwise; ``'latest'`` always the newest periodic one. The model is
     in eval mode; candidates are the training list, (D,) float32 metres.
     """
-    from flax import nnx
-
     from gijax.model import create_model
     from gijax.train.checkpoints import BEST, PERIODIC
 

@@ -1,0 +1,380 @@
+"""ONNX export: parity with JAX, rig-as-input vs baked, TensorRT compatibility rules, legalisation,
+checkpoint checks, and the TensorRT build/run logic against a stand-in ``tensorrt`` module."""
+
+import dataclasses
+import json
+import types
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+from onnx import TensorProto, helper
+
+from gijax.cli import main
+from gijax.export.onnx_export import (OUTPUTS, export_onnx, jax_reference, legalise,
+                                      rendered_inputs)
+from gijax.export.ort_predict import OnnxPredictor
+from gijax.export.trt_compat import check_model
+from gijax.io.rigfile import load_rig
+from gijax.model import create_model
+from gijax.nn.presets import get_preset
+
+# The smallest network with every stage (variance cost volume, any camera count).
+TINY = dataclasses.replace(
+    get_preset("G16V-released-cpu"), name="tiny-export", feature_blocks=(1, 1),
+    surrogate_hw=(32, 128), cost_hw=(8, 32), output_hw=(16, 64), num_candidates=8,
+    unet_base=8, feature_channels=4, unet_in=4, image_scale=0.125)
+CAND = np.geomspace(0.5, 100.0, 8)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    d = tmp_path_factory.mktemp("export")
+    rig = load_rig("paper-train")
+    model = create_model(TINY, seed=1)
+    images, masks = rendered_inputs(TINY, rig, seed=3)
+    ref = jax_reference(model, rig, images, masks, CAND)
+    baked = export_onnx(model, rig, CAND, d / "baked.onnx")
+    live = export_onnx(model, rig, CAND, d / "live.onnx", rig_as_input=True, dynamic_batch=True)
+    return dict(dir=d, rig=rig, model=model, images=images, masks=masks, ref=ref, baked=baked,
+                live=live)
+
+
+def _session(path):
+    opts = ort.SessionOptions()
+    opts.log_severity_level = 3
+    return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+
+
+def test_baked_export_matches_jax(setup):
+    s = setup
+    assert s["baked"].metadata["mode"] == "baked"
+    assert [i.name for i in _session(s["baked"].path).get_inputs()] == ["images", "masks"]
+    out = OnnxPredictor(s["baked"].path, providers=["CPUExecutionProvider"]).predict(
+        s["rig"], s["images"][0], s["masks"][0])
+    ref = s["ref"]
+    assert out["inv_distance"].shape == TINY.output_hw
+    np.testing.assert_allclose(out["inv_distance"], ref["inv_distance"][0], atol=1e-4, rtol=0)
+    np.testing.assert_allclose(out["entropy"], ref["entropy"][0], atol=1e-4, rtol=0)
+    np.testing.assert_array_equal(out["valid"], ref["valid"][0] > 0.5)
+    # Soft-argmax stays inside the candidate range: an independent sanity bound.
+    assert np.all(out["inv_distance"] <= 1 / CAND[0] + 1e-5)
+    assert np.all(out["inv_distance"] >= 1 / CAND[-1] - 1e-6)
+    assert 0.0 < out["valid"].mean() <= 1.0
+    model = onnx.load(s["baked"].path)
+    assert model.ir_version <= 8 and model.opset_import[0].version == 17
+    onnx.checker.check_model(model, full_check=True)
+
+
+def test_rig_as_input_dynamic_batch_matches_jax(setup):
+    s = setup
+    sess = _session(s["live"].path)
+    names = [i.name for i in sess.get_inputs()]
+    assert names == ["images", "masks", "intrinsics", "rotations", "translations", "reference",
+                     "candidates"]
+    assert sess.get_inputs()[0].shape[0] == "B"
+    from gijax.export.onnx_export import model_rig
+    from gijax.export.ort_predict import rig_feed
+
+    feed = {"images": np.repeat(s["images"], 2, 0), "masks": np.repeat(s["masks"], 2, 0)}
+    feed.update(rig_feed(model_rig(TINY, s["rig"]), CAND))
+    got = dict(zip(OUTPUTS, sess.run(list(OUTPUTS), feed)))
+    for b in range(2):
+        np.testing.assert_allclose(got["inv_distance"][b], s["ref"]["inv_distance"][0],
+                                   atol=1e-4, rtol=0)
+        np.testing.assert_array_equal(got["valid"][b], s["ref"]["valid"][0])
+
+
+def test_default_exports_are_tensorrt_clean(setup):
+    for key in ("baked", "live"):
+        report = check_model(setup[key].path)
+        assert report.ok(), report.table()
+        assert "Clip" not in {op for op, t in report.op_dtypes.items() if "i32" in t
+                              or "i64" in t}
+        assert report.op_counts.get("GridSample", 0) == 0
+        assert report.op_counts.get("IsInf", 0) == 0  # legalised to Equal(Abs(x), inf)
+        assert report.op_counts["Conv"] > 0 and report.op_counts["GatherND"] > 0
+
+
+def test_rig_as_input_second_rig_equals_fresh_baked_export(setup):
+    """A moved, re-calibrated rig fed to the rig-as-input file gives what a fresh export with
+    that rig baked in gives."""
+    s = setup
+    rig2 = load_rig("paper-test2")            # 1 m baseline, reference at the centroid
+    cams = tuple(dataclasses.replace(c, fx=c.fx * 1.03, cx=c.cx + 2.0) for c in rig2.cameras)
+    rig2 = rig2.replace(cameras=cams)
+    cand2 = np.geomspace(0.7, 80.0, 8)
+    fresh = export_onnx(s["model"], rig2, cand2, s["dir"] / "fresh.onnx")
+    rng = np.random.default_rng(0)
+    h, w = fresh.inputs["images"][2:4]
+    images = rng.integers(0, 256, (3, h, w, 3), dtype=np.uint8)
+    a = OnnxPredictor(s["live"].path, providers=["CPUExecutionProvider"]).predict(
+        rig2, images, candidates=cand2)
+    b = OnnxPredictor(fresh.path, providers=["CPUExecutionProvider"]).predict(rig2, images)
+    np.testing.assert_allclose(a["inv_distance"], b["inv_distance"], atol=1e-4, rtol=0)
+    np.testing.assert_array_equal(a["valid"], b["valid"])
+    # ...and differs from the training rig's answer (the rig input is really used).
+    c = OnnxPredictor(s["baked"].path, providers=["CPUExecutionProvider"]).predict(
+        s["rig"], images)
+    assert np.abs(a["inv_distance"] - c["inv_distance"]).max() > 1e-3
+    with pytest.raises(ValueError, match="baked in"):
+        OnnxPredictor(fresh.path).predict(rig2, images, candidates=CAND)
+
+
+def test_concat_model_refuses_other_camera_count():
+    cfg = dataclasses.replace(TINY, name="tiny-concat", cost_volume="concat", unet_in=12)
+    model = create_model(cfg)
+    with pytest.raises(ValueError, match="exactly 3 cameras.*has 4"):
+        export_onnx(model, load_rig("paper-test3"), CAND, "/nonexistent/never.onnx")
+
+
+# ----------------------------------------------------------------------------- compat rules
+
+def _model(nodes, inputs, outputs, opset=17, ir=8, inits=()):
+    g = helper.make_graph(nodes, "g", inputs, outputs, initializer=list(inits))
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", opset)])
+    m.ir_version = ir
+    return m
+
+
+def _vi(name, dtype, shape):
+    return helper.make_tensor_value_info(name, dtype, shape)
+
+
+def _errors(report, target):
+    return " | ".join(f.message for f in report.errors(target))
+
+
+def test_compat_flags_integer_clip():
+    m = _model([helper.make_node("Clip", ["x", "lo", "hi"], ["y"])],
+               [_vi("x", TensorProto.INT32, [4])], [_vi("y", TensorProto.INT32, [4])],
+               inits=[helper.make_tensor("lo", TensorProto.INT32, [], [0]),
+                      helper.make_tensor("hi", TensorProto.INT32, [], [2])])
+    r = check_model(m)
+    for t in ("trt8.5", "trt10", "trt11"):
+        assert "integer Clip" in _errors(r, t)
+    # The same clamp after legalisation: no Clip left, same numbers as numpy, report clean.
+    legalise(m)
+    assert "Clip" not in {n.op_type for n in m.graph.node}
+    x = np.array([-3, 0, 1, 7], np.int32)
+    y = _session_from(m).run(None, {"x": x})[0]
+    np.testing.assert_array_equal(y, np.clip(x, 0, 2))
+    assert check_model(m).ok()
+
+
+def _session_from(m):
+    opts = ort.SessionOptions()
+    opts.log_severity_level = 3
+    return ort.InferenceSession(m.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+
+
+def test_isinf_legalised_and_rejected_before_trt10():
+    m = _model([helper.make_node("IsInf", ["x"], ["y"])], [_vi("x", TensorProto.FLOAT, [5])],
+               [_vi("y", TensorProto.BOOL, [5])])
+    r = check_model(m)
+    assert "needs TensorRT >= 10.0" in _errors(r, "trt8.5") and r.ok("trt10")
+    legalise(m)
+    x = np.array([np.inf, -np.inf, 0.0, 1e38, np.nan], np.float32)
+    np.testing.assert_array_equal(_session_from(m).run(None, {"x": x})[0], np.isinf(x))
+    assert check_model(m).ok("trt8.5")
+
+
+def test_compat_flags_5d_grid_sample_before_11_2():
+    m = _model([helper.make_node("GridSample", ["x", "g"], ["y"])],
+               [_vi("x", TensorProto.FLOAT, [1, 2, 4, 4, 4]),
+                _vi("g", TensorProto.FLOAT, [1, 3, 3, 3, 3])],
+               [_vi("y", TensorProto.FLOAT, [1, 2, 3, 3, 3])], opset=20, ir=9)
+    r = check_model(m)
+    assert "5-D GridSample" in _errors(r, "trt10") and "5-D GridSample" in _errors(r, "trt11")
+    assert "needs TensorRT >= 8.6" in _errors(r, "trt8.5")
+    assert "opset 20 > 17" in _errors(r, "trt8.5")
+    m4 = _model([helper.make_node("GridSample", ["x", "g"], ["y"])],
+                [_vi("x", TensorProto.FLOAT, [1, 2, 4, 4]), _vi("g", TensorProto.FLOAT, [1, 3, 3, 2])],
+                [_vi("y", TensorProto.FLOAT, [1, 2, 3, 3])], opset=17)
+    assert check_model(m4).ok("trt10") and not check_model(m4).ok("trt8.5")
+
+
+def test_compat_flags_3d_conv_transpose_and_new_ir():
+    w = helper.make_tensor("w", TensorProto.FLOAT, [2, 2, 2, 2, 2], [0.1] * 32)
+    m = _model([helper.make_node("ConvTranspose", ["x", "w"], ["y"], strides=[2, 2, 2])],
+               [_vi("x", TensorProto.FLOAT, [1, 2, 4, 4, 4])],
+               [_vi("y", TensorProto.FLOAT, [1, 2, 8, 8, 8])], ir=14, inits=[w])
+    r = check_model(m)
+    for t in ("trt8.5", "trt10", "trt11"):
+        assert "3-D ConvTranspose" in _errors(r, t)
+    assert "IR version 14 > 8" in _errors(r, "trt8.5")
+    assert "onnxruntime 1.31 cannot read" in _errors(r, "onnxruntime")
+    assert "FAILS" in r.table()
+    with pytest.raises(ValueError, match="would not build"):
+        r.raise_if_errors()
+
+
+def test_compat_flags_int64_io_and_unknown_ops():
+    m = _model([helper.make_node("Mod", ["x", "x"], ["y"])], [_vi("x", TensorProto.INT64, [3])],
+               [_vi("y", TensorProto.INT64, [3])])
+    r = check_model(m)
+    assert "type i64" in _errors(r, "trt8.5") and "type i64" not in _errors(r, "trt10")
+    assert "not in the TensorRT support table" in _errors(r, "trt10")
+
+
+# ----------------------------------------------------------------------------- TensorRT
+
+def test_trt_commands_say_tensorrt_is_missing(tmp_path, capsys):
+    assert main(["trt", "build", str(tmp_path / "m.onnx"), "--out", str(tmp_path / "m.plan")]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "TensorRT is not installed" in err[0]
+    assert main(["trt", "run", str(tmp_path / "m.plan"), "--rig", "paper-train", "--images",
+                 "a.png"]) == 3
+    assert "TensorRT is not installed" in capsys.readouterr().err
+
+
+class _Recorder:
+    """A stand-in for the parts of the tensorrt module the builder touches; records calls."""
+
+    def __init__(self, version, parse_ok=True, deserialise_ok=True):
+        self.__version__ = version
+        self.calls = []
+        rec = self
+
+        class Logger:
+            WARNING = 2
+
+            def __init__(self, level):
+                pass
+
+        class Flag:
+            EXPLICIT_BATCH = 0
+            STRONGLY_TYPED = 5
+
+        class Parser:
+            def __init__(self, network, logger):
+                self.num_errors = 0 if parse_ok else 1
+
+            def parse_from_file(self, path):
+                rec.calls.append(("parse", path))
+                return parse_ok
+
+            def get_error(self, i):
+                return "Unsupported operator IsInf"
+
+        class Profile:
+            def set_shape(self, name, lo, opt, hi):
+                rec.calls.append(("profile", name, lo, hi))
+
+        class Config:
+            def set_memory_pool_limit(self, pool, size):
+                rec.calls.append(("workspace", size))
+
+            def set_flag(self, flag):
+                rec.calls.append(("flag", flag))
+
+            def add_optimization_profile(self, p):
+                rec.calls.append(("add_profile",))
+
+        class Builder:
+            def __init__(self, logger):
+                pass
+
+            def create_network(self, flags):
+                rec.calls.append(("network_flags", flags))
+                return object()
+
+            def create_builder_config(self):
+                return Config()
+
+            def create_optimization_profile(self):
+                return Profile()
+
+            def build_serialized_network(self, network, config):
+                return b"PLAN" + version.encode()
+
+        class Runtime:
+            def __init__(self, logger):
+                pass
+
+            def deserialize_cuda_engine(self, data):
+                return "engine" if deserialise_ok else None
+
+        self.Logger, self.NetworkDefinitionCreationFlag = Logger, Flag
+        self.OnnxParser, self.Builder, self.Runtime = Parser, Builder, Runtime
+        self.MemoryPoolType = types.SimpleNamespace(WORKSPACE="workspace")
+        self.BuilderFlag = types.SimpleNamespace(FP16="fp16")
+
+
+def test_trt_build_branches_on_version(setup, tmp_path):
+    from gijax.export.trt_engine import build_engine, load_engine
+
+    onnx_path = setup["live"].path  # dynamic batch: needs an optimisation profile
+    t8 = _Recorder("8.5.2.2")
+    info = build_engine(onnx_path, str(tmp_path / "a.plan"), fp16=True, workspace_mb=512,
+                        max_batch=4, trt=t8)
+    assert ("network_flags", 1) in t8.calls and ("flag", "fp16") in t8.calls
+    assert ("workspace", 512 << 20) in t8.calls
+    assert ("profile", "images", (1, 3, 128, 128, 3), (4, 3, 128, 128, 3)) in t8.calls
+    assert "--fp16" in info["trtexec"] and "--memPoolSize=workspace:512" in info["trtexec"]
+    assert "--maxShapes=images:4x3x128x128x3" in info["trtexec"]
+    assert (tmp_path / "a.plan").read_bytes() == b"PLAN8.5.2.2"
+    assert json.loads((tmp_path / "a.plan.json").read_text())["tensorrt"] == "8.5.2.2"
+
+    t10 = _Recorder("10.3.0")
+    build_engine(onnx_path, str(tmp_path / "b.plan"), fp16=True, trt=t10)
+    assert ("network_flags", 0) in t10.calls and ("flag", "fp16") in t10.calls
+
+    t11 = _Recorder("11.0.1")
+    with pytest.raises(ValueError, match="no FP16 builder flag"):
+        build_engine(onnx_path, str(tmp_path / "c.plan"), fp16=True, trt=t11)
+    info = build_engine(onnx_path, str(tmp_path / "c.plan"), trt=t11)
+    assert ("network_flags", 1 << 5) in t11.calls and not any(c[0] == "flag" for c in t11.calls)
+    assert "--stronglyTyped" in info["trtexec"] and "--fp16" not in info["trtexec"]
+
+    with pytest.raises(ValueError, match="could not parse.*IsInf"):
+        build_engine(onnx_path, str(tmp_path / "d.plan"), trt=_Recorder("8.5.1", parse_ok=False))
+    # Engines of another TensorRT version: from the build record, and from the runtime itself.
+    with pytest.raises(ValueError, match="built with TensorRT 8.5.2.2; this is TensorRT 10.3"):
+        load_engine(str(tmp_path / "a.plan"), trt=_Recorder("10.3.0"))
+    (tmp_path / "a.plan.json").unlink()
+    with pytest.raises(ValueError, match="cannot deserialise"):
+        load_engine(str(tmp_path / "a.plan"), trt=_Recorder("10.3.0", deserialise_ok=False))
+    assert load_engine(str(tmp_path / "a.plan"), trt=_Recorder("8.5.2.2")) == "engine"
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+def test_checkpoint_checks(tmp_path):
+    from flax import nnx  # noqa: F401
+
+    from gijax.export.checkpoint import check_checkpoint
+    from gijax.train import step as S
+    from gijax.train.checkpoints import CheckpointStore
+    from gijax.train.config import TrainConfig, save_run_config
+
+    cfg = TrainConfig(preset="G16V-released-cpu", model_overrides=dict(
+        feature_blocks=[1, 1], unet_base=8, feature_channels=4, unet_in=4))
+    model = create_model(cfg.model_config())
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        check_checkpoint(tmp_path, model)
+    _, _, params, rest = S.split_model(model)
+    save_run_config(tmp_path, cfg, np.geomspace(0.5, 100, 16))
+    store = CheckpointStore(tmp_path, keep=1, best_metric=None)
+    store.save(1, S.init_state(params, rest, S.make_optimizer(cfg)), {"step": 1})
+    store.close()
+    assert check_checkpoint(tmp_path, model).name == "1"
+    other = create_model(dataclasses.replace(cfg.model_config(), unet_base=16))
+    with pytest.raises(ValueError, match="has shape .* in the checkpoint but config.json"):
+        check_checkpoint(tmp_path, other)
+
+
+def test_cli_export_preset_validates_and_reports(tmp_path, capsys):
+    cfg_file = tmp_path / "tiny.json"
+    cfg_file.write_text(json.dumps({k: list(v) if isinstance(v, tuple) else v
+                                    for k, v in dataclasses.asdict(TINY).items()}))
+    out = tmp_path / "cli.onnx"
+    code = main(["export", "--preset", str(cfg_file), "--rig", "paper-train", "--out", str(out),
+                 "--batch", "2"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "UNTRAINED" in text and "OK" in text and "TensorRT 8.5 (JetPack 5): OK" in text
+    assert _session(out).get_inputs()[0].shape == [2, 3, 128, 128, 3]
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert "UNTRAINED" in meta["gijax.source"]
