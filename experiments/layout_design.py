@@ -65,7 +65,6 @@ def search_comparison(spec, starts: int, steps: int, seed: int) -> dict:
     grid = grid_search(spec, budget, batch=starts)
     # Warm timings of one batch (compilation excluded) for the cost of a value vs a gradient.
     from gijax.design.optimize import _adam_fns
-    import optax  # noqa: F401  (the step below uses optax's state)
 
     tx, step = _adam_fns(spec, 0.05, steps)
     lays = adam.layouts
@@ -223,9 +222,10 @@ def main(argv=None) -> int:
         rep = evaluate_layouts(stack_layouts([layouts[row["layout"]]]), spec, cfg["starts"])
         row["objective"] = float(rep["objective"][0])
         row["hard_coverage"] = float(rep["hard_coverage"][0])
-        row["positions"] = np.asarray(layouts[row["layout"]].positions).round(4).tolist()
+        lay = layouts[row["layout"]]
+        row["positions"] = np.asarray(lay.positions, np.float64).round(3).tolist()
         row["tilt_deg"] = np.degrees(np.linalg.norm(
-            np.asarray(layouts[row["layout"]].rotvecs)[:, :2], axis=1)).round(2).tolist()
+            np.asarray(lay.rotvecs, np.float64)[:, :2], axis=1)).round(2).tolist()
     from scipy.stats import spearmanr
 
     rho = float(spearmanr([r["objective"] for r in val], [r["mae"] for r in val])[0]) \
@@ -245,8 +245,9 @@ def main(argv=None) -> int:
             "adam_final_per_start": r["adam"].final.tolist(),
             "adam_improved_every_start": bool(np.all(r["adam"].history[-1]
                                                      < r["adam"].history[0])),
-            "best_layout": {"positions": np.asarray(r["adam"].best.positions).round(4).tolist(),
-                            "rotvecs": np.asarray(r["adam"].best.rotvecs).round(4).tolist()},
+            "best_layout": {
+                "positions": np.asarray(r["adam"].best.positions, np.float64).round(4).tolist(),
+                "rotvecs": np.asarray(r["adam"].best.rotvecs, np.float64).round(4).tolist()},
             "best_terms": r["adam"].best_terms, "constraints": r["constraints"],
         })
     meta = {"command": " ".join([Path(sys.argv[0]).name] + (argv or sys.argv[1:])),

@@ -65,7 +65,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     from gijax.geometry.rig import scale_rig
     from gijax.predict import predict
     from gijax.render import render_sample
-    from gijax.train.trainer import load_for_inference
+    from gijax.train.bundle import load_model
     from gijax.viz.pointcloud import panorama_points, write_ply
 
     out_dir = Path(out_dir)
@@ -75,7 +75,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     if not (model_dir / "config.json").is_file():
         raise FileNotFoundError(f"no trained model at {model_dir} (expected a run folder with "
                                 f"config.json and checkpoints)")
-    model, config, train_cand = load_for_inference(model_dir)
+    model, config, train_cand = load_model(model_dir)
     pano = Panorama.hemisphere(*config.output_hw)
 
     steps = len(rigs) * 4

@@ -211,24 +211,16 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
 
 
 def load_model(path: str | os.PathLike) -> tuple[OmniStereoNet, np.ndarray]:
-    """A trained model and its training candidates (metres) from a run folder.
+    """A trained model (eval mode) and its training candidates (metres).
 
-    The run folder holds ``config.json`` (:func:`gijax.train.config.load_run_config`: the model
-    configuration and the candidate list) and orbax checkpoints; the weights are restored by
-    ``gijax.train.checkpoints.restore_model(run_dir, model)``.
+    ``path`` is a training run folder (``config.json`` plus orbax checkpoints; the best
+    validated checkpoint is used when there is one) or an inference bundle
+    (:mod:`gijax.train.bundle`).
     """
-    from gijax.train import checkpoints
-    from gijax.train.config import load_run_config
+    from gijax.train.bundle import load_model as load_any
 
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such checkpoint / run folder")
-    _, config, candidates = load_run_config(path)
-    model = create_model(config)
-    restore = getattr(checkpoints, "restore_model", None)
-    if restore is None:
-        raise ValueError(f"{path}: this gijax has no reader for trained weights "
-                         f"(gijax.train.checkpoints.restore_model); use --preset for an "
-                         f"untrained model")
-    model = restore(path, model)
+    model, _, candidates = load_any(path)
     return model, np.asarray(candidates, np.float64)

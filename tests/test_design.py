@@ -13,7 +13,7 @@ from gijax.design import (DesignSpec, at_least_two, constraint_report, evaluate_
                           is_feasible, layout_rig, make_layout, objective_terms,
                           occluder_margin, optimize_layout, penalty, random_layouts,
                           regular_layout, stack_layouts, violations)
-from gijax.geometry.occluder import FAR, Cylinder, cylinder_hit
+from gijax.geometry.occluder import Cylinder, cylinder_hit
 from gijax.geometry.panorama import Panorama
 
 # Small ray grid and list: the tests exercise the same code paths at a fraction of the cost.

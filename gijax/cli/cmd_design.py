@@ -34,8 +34,8 @@ def _run(args) -> int:
         "coverage": t["coverage"], "hard_coverage": t["hard_coverage"],
         "mean_step_px": t["mean_step_px"],
         "regular_layout_objective": float(regular["objective"][0]),
-        "positions": np.asarray(res.best.positions).round(4).tolist(),
-        "rotvecs": np.asarray(res.best.rotvecs).round(4).tolist(),
+        "positions": np.asarray(res.best.positions, np.float64).round(4).tolist(),
+        "rotvecs": np.asarray(res.best.rotvecs, np.float64).round(4).tolist(),
         "candidates": [round(c, 4) for c in t["candidates"]],
         "constraints": report, "evaluations": res.evaluations, "seconds": round(res.seconds, 2),
     }

@@ -122,11 +122,15 @@ def run(args) -> int:
     from gijax.geometry.panorama import Panorama
     from gijax.train.metrics import batch_sums, summarize
     from gijax.train.sources import open_dataset, validation_batches
+    from gijax.train.bundle import is_bundle, load_bundle
     from gijax.train.trainer import load_for_inference
 
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1; found {args.batch}")
-    model, mc, train_cand = load_for_inference(args.ckpt, args.which)
+    if is_bundle(args.ckpt):
+        model, mc, train_cand = load_bundle(args.ckpt)
+    else:
+        model, mc, train_cand = load_for_inference(args.ckpt, args.which)
     reader = open_dataset(args.data, "evaluation")
     if args.rig:
         from gijax.io.rigfile import load_rig

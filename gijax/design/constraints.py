@@ -35,9 +35,10 @@ def violations(layout: Layout, spec: DesignSpec, slack: float = 0.0) -> dict:
     of ``min_separation`` (upper triangle; the diagonal and lower triangle are 0);
     ``occluder`` (N,) m inside the cylinder's radius plus ``occluder_clearance``; ``tilt`` (N,)
     radians beyond ``max_tilt_deg`` (0 when orientations are fixed); ``height`` (N,) m outside
-    ``height_range`` (0 when heights are fixed). ``slack`` (not applied to the footprint, which the
-    optimiser holds by projection) raises the separation, clearance and height margins by that many metres and the tilt bound by
-    ``100 * slack`` degrees (0.5 degrees for 5 mm).
+    ``height_range`` (0 when heights are fixed). ``slack`` (not applied to the footprint,
+    which the optimiser holds by projection) raises the separation, clearance and height
+    margins by that many metres and tightens the tilt bound by ``100 * slack`` degrees (0.5
+    degrees for 5 mm).
     """
     lay = free_layout(layout, spec)
     xy = lay.positions

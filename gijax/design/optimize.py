@@ -253,25 +253,26 @@ def grid_search(spec: DesignSpec, evaluations: int, batch: int = 8,
                 dtype=jnp.float32) -> dict:
     """Exhaustive search over camera placements on a lattice, within an evaluation budget.
 
-    Every camera sits on a point of the finest ``g x g`` lattice (edges included) for which the
-    number of ways to place the cameras on distinct points, ``C(M, N)``, fits the budget (if
-    even the coarsest lattice holding N points has more, evenly spaced placements in
-    enumeration order up to the budget); the placements are evaluated with the cameras looking along +z at z = 0 (the grid does not
-    search orientations or heights: their dimension would leave at most a handful of values per
-    axis). Returns the keys of :func:`random_search` plus ``per_side`` and ``points``.
+    Every camera sits on a point of the coarsest ``g x g`` lattice (edges included) whose
+    number of placements of the cameras on distinct points, ``C(M, N)``, reaches the budget;
+    when it exceeds it, placements evenly spaced in enumeration order (lexicographic in the
+    point indices) are taken up to the budget. They are evaluated with the cameras looking
+    along +z at z = 0 (the grid does not search orientations or heights: their dimension
+    would leave at most a handful of values per axis). Returns the keys of
+    :func:`random_search` plus ``per_side`` and ``points``.
     """
     t0 = time.perf_counter()
     n = spec.num_cameras
     g = 2
     while len(grid_points(spec, g)) < n:
         g += 1
-    while math.comb(len(grid_points(spec, g + 1)), n) <= evaluations:
+    while math.comb(len(grid_points(spec, g)), n) < evaluations:
         g += 1
     pts = grid_points(spec, g)
     combos = np.asarray(list(itertools.combinations(range(len(pts)), n)))
     if len(combos) > evaluations:
-        # Even the coarsest lattice that holds the cameras has more placements than the
-        # budget: take evenly spaced ones in enumeration order.
+        # The lattice has more placements than the budget: evenly spaced ones in
+        # enumeration order, so that the budget is used in full.
         combos = combos[np.unique(np.linspace(0, len(combos) - 1, evaluations).round()
                                   .astype(int))]
     lays = Layout(jnp.asarray(pts[combos], dtype), jnp.zeros((len(combos), n), dtype),

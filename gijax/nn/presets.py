@@ -160,7 +160,7 @@ _PAPER = [
 
 # CPU U-Net widths keep the paper's ordering: the in16/f32 released variance model is the
 # narrowest, G16VV's U-Net is wider than its input, concat models get the camera-stacked input.
-_CPU_BASE = {"G16V-released": 16, "G16VV": 24}
+_CPU_BASE = {"G16V-released": 12, "G16VV": 16}
 
 PRESETS: dict[str, ModelConfig] = {c.name: c for c in _PAPER}
 PRESETS.update({c.name + "-cpu": _cpu(c, _CPU_BASE.get(c.name, 16)) for c in _PAPER})
