@@ -14,8 +14,11 @@ Run a model on one image per camera and write, under --out: distance.npy (float3
 uncertainty.png (entropy of the candidate distribution), points.ply (coloured point cloud in
 the rig frame) and prediction.json.
 
-The model comes from a training run folder (--ckpt) or, for trying the pipeline, from a preset
-with random weights (--preset; the outputs are then labelled UNTRAINED).
+The model comes from a training run folder or an inference bundle (--ckpt), from an exported
+ONNX file run by onnxruntime (--backend onnx --onnx FILE), or, for trying the pipeline, from a
+preset with random weights (--preset; the outputs are then labelled UNTRAINED).
+--method rtss runs the classical sphere-sweep stereo baseline instead (no model needed;
+--rtss-preset picks RS-E16, RS-G16, RS-E32 or RS-G32).
 
 Candidates: 'train' (default) uses the training list (from the run folder; for a preset, the
 preset's kind in closed form: EV or GI with the paper's baseline); 'rig' recomputes
@@ -27,7 +30,15 @@ with one distance in metres per line, or a JSON list.
 def register(subparsers) -> None:
     p = subparsers.add_parser("predict", help=HELP, description=DESCRIPTION,
                               formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
-    src = p.add_mutually_exclusive_group(required=True)
+    p.add_argument("--method", choices=("learned", "rtss"), default="learned",
+                   help="learned network (default) or the classical RTSS baseline")
+    p.add_argument("--rtss-preset", default="RS-E32", metavar="NAME",
+                   help="RTSS configuration for --method rtss (default RS-E32)")
+    p.add_argument("--backend", choices=("jax", "onnx"), default="jax",
+                   help="run the learned model in JAX (default) or an exported ONNX file with "
+                        "onnxruntime (CPU, or CUDA where available)")
+    p.add_argument("--onnx", metavar="FILE", help="exported model for --backend onnx")
+    src = p.add_mutually_exclusive_group()
     src.add_argument("--ckpt", metavar="PATH", help="training run folder (config.json + "
                      "checkpoints)")
     src.add_argument("--preset", metavar="NAME|FILE", help="model preset (e.g. G16VV-cpu) or a "
@@ -137,6 +148,13 @@ def run(args) -> int:
     masks = None
     if args.masks is not None:
         masks = np.stack([(read_image(p, grey=True) > 0).astype(np.float32) for p in args.masks])
+    if args.method == "rtss":
+        return _run_rtss(args, rig, np.stack(images), masks)
+    if args.backend == "onnx":
+        return _run_onnx(args, rig, np.stack(images), masks)
+    if not (args.ckpt or args.preset):
+        raise ValueError("the learned method needs --ckpt RUN (or --preset NAME for an untrained "
+                         "model)")
     if args.ckpt:
         model, train_cand = load_model(args.ckpt)
         label = f"{model.config.name} from {args.ckpt}"
@@ -146,10 +164,84 @@ def run(args) -> int:
     candidates, how = resolve_candidates(args.candidates, model.config, rig, train_cand)
     result = predict(model, rig, np.stack(images), masks, candidates)
     title = f"{label}; candidates: {how}"
-    paths = write_prediction(result, rig, args.out, title=title)
+    _report(result, rig, args.out, title)
+    return 0
+
+
+def _report(result: dict, rig, out: str, title: str) -> None:
+    from gijax.predict import write_prediction
+
+    paths = write_prediction(result, rig, out, title=title)
     print(title)
     print(f"distance {result['distance'].shape}: median {np.median(result['distance']):.3f} m, "
           f"valid {result['valid'].mean() * 100:.1f} %")
     for kind, path in paths.items():
         print(f"  {kind:22s} {path}")
+
+
+def _colours(rig, images: np.ndarray, masks, distance: np.ndarray) -> np.ndarray:
+    import jax.numpy as jnp
+
+    from gijax.predict import _point_colours
+    from gijax.sweep.surrogate import as_float_image
+
+    colour_rig = rig if masks is None else rig.replace(
+        masks=tuple(jnp.asarray(m, jnp.float32) for m in masks))
+    return np.asarray(_point_colours(colour_rig, as_float_image(images),
+                                     jnp.asarray(np.nan_to_num(distance, nan=1.0))))
+
+
+def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
+    """The classical baseline at the images' own size; the panorama is the paper's 160 x 640."""
+    from gijax.baseline.rtss import get_rtss_preset, preset_candidates, rtss_predict_sample
+
+    from gijax.geometry.rig import scale_rig
+
+    config = get_rtss_preset(args.rtss_preset)
+    cam = rig.cameras[0]
+    if images.shape[1:3] != (cam.height, cam.width):
+        # Images smaller than the calibration (e.g. the -cpu size): the same lens, resized.
+        factor = images.shape[2] / cam.width
+        rig = scale_rig(rig, factor)
+        if images.shape[1:3] != (rig.cameras[0].height, rig.cameras[0].width):
+            raise ValueError(f"images are {images.shape[1]} x {images.shape[2]}; the rig's "
+                             f"cameras are {cam.height} x {cam.width} (another aspect ratio)")
+    candidates = (preset_candidates(rig, config) if args.candidates == "train" else
+                  resolve_candidates(args.candidates, config, rig, None)[0])
+    sample = {"images": images}
+    if masks is not None:
+        sample["masks"] = masks
+    result = rtss_predict_sample(rig, sample, args.rtss_preset, candidates=candidates)
+    valid = np.asarray(result["valid"], bool)
+    result = {
+        "inv_distance": np.nan_to_num(result["inv_distance"], nan=0.0),
+        "distance": np.where(valid, result["distance"], np.inf).astype(np.float32),
+        "valid": valid,
+        # The baseline has no candidate distribution; its uncertainty map is left at zero.
+        "entropy": np.zeros(valid.shape, np.float32),
+        "candidates": np.asarray(candidates, np.float64),
+    }
+    result["colour"] = _colours(rig, images, masks, np.where(valid, result["distance"], 1.0))
+    _report(result, rig, args.out, f"classical baseline {args.rtss_preset}")
+    return 0
+
+
+def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
+    from gijax.export.ort_predict import OnnxPredictor
+
+    if not args.onnx:
+        raise ValueError("--backend onnx needs --onnx FILE (an exported model)")
+    pred = OnnxPredictor(args.onnx)
+    candidates = None
+    if args.candidates != "train":
+        from gijax.nn.presets import ModelConfig
+
+        config = ModelConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                for k, v in pred.info.config.items()})
+        candidates = resolve_candidates(args.candidates, config, rig, None)[0]
+    result = pred.predict(rig, images, masks, candidates)
+    small = pred.info.scaled_rig(rig)
+    feed_images = pred.info.feed(rig, images, masks)[0]["images"][0]
+    result["colour"] = _colours(small, feed_images, None, result["distance"])
+    _report(result, rig, args.out, f"ONNX model {args.onnx} (onnxruntime)")
     return 0

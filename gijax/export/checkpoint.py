@@ -100,9 +100,14 @@ def load_checkpoint(run_dir):
     from gijax.train.config import load_run_config
     from gijax.train.trainer import load_for_inference
 
+    from gijax.train.bundle import is_bundle, load_bundle
+
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"{run_dir}: no such run folder")
+    if is_bundle(run_dir):  # a bundle checks every stored shape against its config itself
+        model, mc, cand = load_bundle(run_dir)
+        return model, mc, np.asarray(cand, np.float64)
     cfg, mc, _ = load_run_config(run_dir)
     check_checkpoint(run_dir, create_model(mc, cfg.seed))
     model, mc, cand = load_for_inference(run_dir)
