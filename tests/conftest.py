@@ -1,6 +1,14 @@
-"""Shared test setup: float64 is enabled per test with ``jax.enable_x64`` where a test needs it."""
+"""Shared test fixtures. float64 is enabled per test with ``jax.enable_x64`` where needed."""
 
-import os
+import jax
+import pytest
 
-# Keep XLA from grabbing every core twice when pytest-xdist runs two workers on a 2-core box.
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
+
+@pytest.fixture(scope="module")
+def quick_compiles():
+    """Compile without XLA's optimisation passes, for modules whose checks (shapes,
+    invariances, gradients, errors, files) do not depend on them: they dominate compile time."""
+    previous = jax.config.read("jax_disable_most_optimizations")
+    jax.config.update("jax_disable_most_optimizations", True)
+    yield
+    jax.config.update("jax_disable_most_optimizations", previous)

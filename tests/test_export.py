@@ -378,3 +378,23 @@ def test_cli_export_preset_validates_and_reports(tmp_path, capsys):
     assert _session(out).get_inputs()[0].shape == [2, 3, 128, 128, 3]
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
     assert "UNTRAINED" in meta["gijax.source"]
+
+
+def test_predict_cli_onnx_backend_matches_the_predictor(setup, tmp_path):
+    import cv2
+
+    s = setup
+    paths = []
+    images = np.clip(np.asarray(s["images"][0]) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    for i, im in enumerate(images):
+        paths.append(str(tmp_path / f"cam{i}.png"))
+        cv2.imwrite(paths[-1], np.ascontiguousarray(im[..., ::-1]))
+    out = tmp_path / "pred"
+    code = main(["predict", "--backend", "onnx", "--onnx", str(s["baked"].path), "--rig",
+                 "paper-train", "--images", *paths, "--out", str(out)])
+    assert code == 0
+    direct = OnnxPredictor(s["baked"].path, providers=["CPUExecutionProvider"]).predict(
+        s["rig"], images, None)
+    written = np.load(out / "distance.npy")
+    np.testing.assert_allclose(written, direct["distance"], rtol=1e-5)
+    assert (out / "points.ply").stat().st_size > 100

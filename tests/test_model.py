@@ -58,14 +58,7 @@ def inputs(n, seed, batch=1, hw=(32, 128)):
 forward = nnx.jit(lambda m, s, k, r, c: m(s, k, r, c))
 
 
-@pytest.fixture(autouse=True, scope="module")
-def quick_compiles():
-    """XLA's optimisation passes dominate these tests' run time and change nothing they check
-    (shapes, invariances, gradients, errors, files), so this module compiles without them."""
-    previous = jax.config.read("jax_disable_most_optimizations")
-    jax.config.update("jax_disable_most_optimizations", True)
-    yield
-    jax.config.update("jax_disable_most_optimizations", previous)
+pytestmark = pytest.mark.usefixtures("quick_compiles")
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,11 @@ Pipeline, for every reference camera ``r`` (all cameras by default):
 1. every camera's image is resampled to its matching view (:mod:`gijax.baseline.views`);
 2. per reference pixel, the partner camera with the largest displacement between the nearest
    and the farthest candidate (:mod:`gijax.baseline.camera_select`, pure geometry);
-3. per candidate the cost ``min(sum_RGB |ref - warped|, cost_clamp)`` with the partner image
-   warped bilinearly (4-neighbour gather); candidates the partner cannot see cost ``cost_clamp``;
+3. per candidate a matching cost against the partner image warped bilinearly (4-neighbour
+   gather): by default the zero-mean normalised cross-correlation of 7x7 patches (a departure
+   from RTSS that survives per-camera exposure and sensor noise), or with ``cost='ad'`` the
+   original ``min(sum_RGB |ref - warped|, cost_clamp)`` on single pixels
+   (:mod:`gijax.baseline.matching_cost`); candidates the partner cannot see cost ``cost_clamp``;
 4. every cost slice filtered by the edge-aware pyramid guided by the reference view
    (:mod:`gijax.baseline.cost_filter`);
 5. winner-take-all, parabola refinement, fractional index to inverse distance through the
@@ -27,6 +30,7 @@ import numpy as np
 
 from gijax.baseline.camera_select import item_at, select_best_camera, sweep_coords
 from gijax.baseline.cost_filter import edge_aware_filter
+from gijax.baseline.matching_cost import COST_KINDS, matching_cost
 from gijax.baseline.stitch import stitch
 from gijax.baseline.views import MatchView, view_image
 from gijax.baseline.winner import winner_take_all
@@ -52,8 +56,13 @@ class RTSSConfig:
       references: indices of the reference cameras, or None for every camera.
       min_displacement: pixels; a partner camera must move the point by more than this
         between the nearest and the farthest candidate.
-      cost_clamp: upper bound of the per-pixel cost (sum of 3 absolute RGB differences in
-        [0, 1] colours); also the cost of candidates the partner cannot see.
+      cost: 'zncc' (default; zero-mean normalised cross-correlation of ``cost_window``-wide
+        patches, cost ``0.5 (1 - ncc)``) or 'ad' (the original RTSS cost: sum of the 3
+        absolute RGB differences of single pixels). 'ad' with ``normalize_gain`` is the
+        paper's configuration.
+      cost_window: patch width in pixels of the 'zncc' cost (odd).
+      cost_clamp: upper bound of the per-pixel cost; also the cost of candidates the partner
+        cannot see. 0.5 means "uncorrelated or worse" for 'zncc'.
       filter_levels: pyramid levels of the cost filter (0 = no filtering).
       filter_sigma: colour scale of the filter's edge weights.
       filter_alpha: share of the coarser level in every up-blend of the pyramid.
@@ -73,6 +82,8 @@ class RTSSConfig:
     match_size: int = 512
     references: Optional[tuple] = None
     min_displacement: float = 1.0
+    cost: str = "zncc"
+    cost_window: int = 7
     cost_clamp: float = 0.5
     filter_levels: int = 5
     filter_sigma: float = 0.1
@@ -88,6 +99,11 @@ class RTSSConfig:
             raise ValueError(f"RTSSConfig.num_candidates must be >= 3; found {self.num_candidates}")
         if not 0 < self.d_min < self.d_max:
             raise ValueError(f"RTSSConfig needs 0 < d_min < d_max; found {self.d_min}, {self.d_max}")
+        if self.cost not in COST_KINDS:
+            raise ValueError(f"RTSSConfig.cost must be one of {COST_KINDS}; found {self.cost!r}")
+        if self.cost_window < 1 or self.cost_window % 2 == 0:
+            raise ValueError(f"RTSSConfig.cost_window must be a positive odd number of pixels; "
+                             f"found {self.cost_window}")
         if self.stitch_samples < 2:
             raise ValueError(f"RTSSConfig.stitch_samples must be >= 2; found {self.stitch_samples}")
         MatchView(self.match_view, self.match_size)
@@ -186,8 +202,7 @@ def reference_map(rig: Rig, view: MatchView, ref, view_images, view_masks, sizes
     stack = _stack_padded(view_images)
     warped = _gather_partner(stack, sizes, sel["best"], coords, ok)
     ref_img = item_at(view_images, ref)
-    cost = jnp.sum(jnp.abs(warped - ref_img[None]), -1)
-    cost = jnp.where(ok, jnp.minimum(cost, config.cost_clamp), config.cost_clamp)
+    cost = matching_cost(config.cost, ref_img, warped, ok, config.cost_clamp, config.cost_window)
     conf = sel["valid"].astype(cost.dtype)
     cost = edge_aware_filter(cost, conf, ref_img, config.filter_levels, config.filter_sigma,
                              config.filter_alpha)

@@ -48,7 +48,9 @@ def choose_candidates(spec: str, train_candidates, model_config, rig) -> np.ndar
     elif spec in ("rig", "ev"):
         from gijax.candidates import candidates_for
 
-        kind = "ev" if spec == "ev" or model_config.candidates == "ev" else "gi"
+        # 'rig' is the rig-aware GI list whatever the training kind: the paper recomputes GI
+        # candidates for a new rig for EV-trained models too (Table II, E16).
+        kind = "ev" if spec == "ev" else "gi"
         cand = np.asarray(candidates_for(kind, n, rig=rig, d_min=model_config.d_min,
                                          d_max=model_config.d_max), np.float64)
     else:

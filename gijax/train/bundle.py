@@ -30,13 +30,13 @@ _SEP = "/"
 def _flatten(pure: dict) -> dict[str, np.ndarray]:
     from flax import traverse_util
 
-    flat = traverse_util.flatten_dict(pure, sep=_SEP)
-    return {str(k): np.asarray(v) for k, v in flat.items()}
+    flat = traverse_util.flatten_dict(pure)  # keys are tuples of names and list indices
+    return {_SEP.join(str(p) for p in k): np.asarray(v) for k, v in flat.items()}
 
 
-def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
-                 provenance: dict | None = None, which: str = "best") -> Path:
-    """Write the bundle of a training run (its best checkpoint by default) to ``out_dir``.
+def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLike,
+                provenance: dict | None = None) -> Path:
+    """Write ``model``'s variables, a copy of its run's ``config.json`` and the provenance.
 
     The folder is assembled under a temporary name and renamed into place, so an interrupted
     call never leaves a bundle that looks complete.
@@ -44,15 +44,13 @@ def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
     from flax import nnx
 
     from gijax.train.config import CONFIG_FILE
-    from gijax.train.trainer import load_for_inference
 
-    run_dir, out_dir = Path(run_dir), Path(out_dir)
-    model, _, _ = load_for_inference(run_dir, which=which)
-    weights = _flatten(nnx.state(model).to_pure_dict())
+    out_dir = Path(out_dir)
+    weights = _flatten(nnx.to_pure_dict(nnx.state(model)))
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
-        shutil.copyfile(run_dir / CONFIG_FILE, tmp / CONFIG_FILE)
+        shutil.copyfile(config_file, tmp / CONFIG_FILE)
         np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f" else v
                                         for k, v in weights.items()})
         (tmp / PROVENANCE_FILE).write_text(json.dumps(provenance or {}, indent=2) + "\n")
@@ -63,6 +61,17 @@ def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out_dir
+
+
+def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
+                 provenance: dict | None = None, which: str = "best") -> Path:
+    """The bundle of a training run (its best validated checkpoint by default)."""
+    from gijax.train.config import CONFIG_FILE
+    from gijax.train.trainer import load_for_inference
+
+    run_dir = Path(run_dir)
+    model, _, _ = load_for_inference(run_dir, which=which)
+    return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance)
 
 
 def is_bundle(path: str | os.PathLike) -> bool:
@@ -81,11 +90,13 @@ def load_bundle(path: str | os.PathLike):
     cfg, mc, cand = load_run_config(path)
     model = create_model(mc, cfg.seed)
     state = nnx.state(model)
-    expected = _flatten(state.to_pure_dict())
+    expected = _flatten(nnx.to_pure_dict(state))
+    import zipfile
+
     try:
         with np.load(path / WEIGHTS_FILE) as f:
             stored = {k: f[k] for k in f.files}
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path / WEIGHTS_FILE}: unreadable weights ({exc})") from exc
     missing = sorted(set(expected) - set(stored))
     extra = sorted(set(stored) - set(expected))

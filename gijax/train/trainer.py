@@ -48,14 +48,19 @@ def init_distributed(coordinator: Optional[str], num_processes: Optional[int],
 
 
 def training_candidates(config: TrainConfig, rig: Optional[Rig]) -> np.ndarray:
-    """The candidate list (metres) a run trains with: explicit, or the preset's kind for ``rig``."""
+    """The candidate list (metres) a run trains with: explicit, or the preset's kind.
+
+    GI presets train with the closed form at the paper's training baseline (the released G8 /
+    G16 lists), exactly as the paper's models did; rig-aware lists are for adapting a trained
+    model to another rig (``--candidates rig`` at evaluation and inference).
+    """
     mc = config.model_config()
     if config.candidates is not None:
         cand = np.asarray(config.candidates, np.float64)
     else:
         from gijax.candidates import candidates_for
 
-        kind = "gi" if mc.candidates == "gi" else "ev"
+        kind = "gi-closed" if mc.candidates == "gi" else "ev"
         cand = np.asarray(candidates_for(kind, mc.num_candidates, rig=rig, d_min=mc.d_min,
                                          d_max=mc.d_max), np.float64)
     if cand.shape != (mc.num_candidates,):
