@@ -133,42 +133,61 @@ def format_table(table: dict, seed: int) -> str:
         for name, m in methods.items():
             lines.append(f"{rig:<12} {name:<40} {m['mae']:7.4f} {m['rmse']:7.4f} "
                          f"{m['ssim']:6.3f} {m['coverage']:6.1%} {m['seconds']:7.2f}")
+    lines.append("time: wall seconds of one run, including its first-call compilation")
     return "\n".join(lines)
 
 
 def _figure(path: Path, panels, candidates) -> None:
+    """Per rig: the camera images, then ground truth and every method's panorama beside its
+    absolute error (inverse distance, 1/m; shared colour scales)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    vmax = 1.0 / float(np.min(candidates))
-    n_methods = max(len(p[2]) for p in panels)
-    cols = 2 + n_methods
-    fig, axes = plt.subplots(2 * len(panels), cols, figsize=(3.2 * cols, 2.3 * 2 * len(panels)),
-                             squeeze=False)
-    for r, (name, sample, methods) in enumerate(panels):
-        top, bottom = axes[2 * r], axes[2 * r + 1]
-        top[0].imshow(sample["images"][0])
-        top[0].set_title(f"{name}: camera 0")
-        bottom[0].imshow(sample["masks"][0], cmap="gray")
-        bottom[0].set_title("camera 0 mask")
+    vmin, vmax = 1.0 / float(np.max(candidates)), 1.0 / float(np.min(candidates))
+    rows = sum(3 + len(methods) for _, _, methods in panels)
+    fig = plt.figure(figsize=(12, 1.55 * rows + 0.8))
+    outer = fig.add_gridspec(rows, 2, hspace=0.55, wspace=0.06, left=0.02, right=0.98,
+                             top=0.97, bottom=0.07)
+    r = 0
+    im = em = None
+    for name, sample, methods in panels:
+        cams = fig.add_gridspec(1, 2 * len(sample["images"]), left=0.02, right=0.98,
+                                top=outer[r, 0].get_position(fig).y1,
+                                bottom=outer[r + 1, 0].get_position(fig).y0, wspace=0.05)
+        for c, image in enumerate(sample["images"]):
+            ax = fig.add_subplot(cams[0, 2 * c])
+            ax.imshow(image)
+            ax.set_title(f"{name}: camera {c}", fontsize=8)
+            ax.axis("off")
+            ax = fig.add_subplot(cams[0, 2 * c + 1])
+            ax.imshow(sample["masks"][c], cmap="gray", vmin=0, vmax=1)
+            ax.set_title(f"mask {c}", fontsize=8)
+            ax.axis("off")
+        r += 2
         gt = 1.0 / np.clip(sample["pano_distance"], 1e-3, None)
-        top[1].imshow(gt, cmap="turbo", vmin=0, vmax=vmax)
-        top[1].set_title("ground truth 1/d")
-        bottom[1].axis("off")
-        for c, m in enumerate(methods):
-            im = top[2 + c].imshow(m.inv_distance, cmap="turbo", vmin=0, vmax=vmax)
-            top[2 + c].set_title(f"{m.name}\nMAE {m.metrics['mae']:.3f}", fontsize=8)
-            err = np.abs(m.inv_distance - np.clip(gt, 1.0 / float(np.max(candidates)), vmax))
-            em = bottom[2 + c].imshow(err, cmap="magma", vmin=0, vmax=0.5)
-            bottom[2 + c].set_title("|error| 1/m", fontsize=8)
-        for ax in (*top, *bottom):
-            ax.set_xticks([])
-            ax.set_yticks([])
-    fig.colorbar(im, ax=axes[0::2].ravel().tolist(), shrink=0.6, label="inverse distance 1/m")
-    fig.colorbar(em, ax=axes[1::2].ravel().tolist(), shrink=0.6, label="absolute error 1/m")
+        rows_here = [("ground truth", gt, None)] + [
+            (f"{m.name} (MAE {m.metrics['mae']:.3f})", m.inv_distance,
+             np.abs(m.inv_distance - np.clip(gt, vmin, vmax))) for m in methods]
+        for title, pano, err in rows_here:
+            ax = fig.add_subplot(outer[r, 0])
+            im = ax.imshow(pano, cmap="turbo", vmin=vmin, vmax=vmax, aspect="auto")
+            ax.set_title(f"{name}: {title}", fontsize=8)
+            ax.axis("off")
+            ax = fig.add_subplot(outer[r, 1])
+            if err is None:
+                ax.axis("off")
+            else:
+                em = ax.imshow(err, cmap="magma", vmin=0, vmax=0.5, aspect="auto")
+                ax.set_title("absolute error", fontsize=8)
+                ax.axis("off")
+            r += 1
+    cax = fig.add_axes([0.06, 0.025, 0.38, 0.012])
+    fig.colorbar(im, cax=cax, orientation="horizontal", label="inverse distance (1/m)")
+    cax = fig.add_axes([0.56, 0.025, 0.38, 0.012])
+    fig.colorbar(em, cax=cax, orientation="horizontal", label="absolute error (1/m)")
     tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=90)
+    fig.savefig(tmp, dpi=80)
     plt.close(fig)
     os.replace(tmp, path)

@@ -174,6 +174,55 @@ def sweep(ctx: Context) -> dict:
     return {"rows": [row]}
 
 
+def stages(ctx: Context) -> dict:
+    """The forward pass cut into its stages (feature extractor, sweep, cost volume, U-Net,
+    regression), each compiled and timed alone with its FLOPs and bytes: where the time goes
+    and how far each stage is from the machine's limits."""
+    from gijax.model import create_model
+    from gijax.nn import regress
+
+    cfg = get_preset(ctx.settings.sweep_preset)
+    rig = network_rig(builtin_rig("paper-train"), cfg)
+    model = create_model(cfg, seed=0)
+    model.eval()
+    graphdef, state = nnx.split(model)
+    sur, masks, cand = network_inputs(cfg, rig.num_cameras)
+    b, n, hs, ws, _ = sur.shape
+
+    def features(state, sur):
+        feats = nnx.merge(graphdef, state).features(sur.reshape(b * n, hs, ws, 3))
+        return feats.reshape(b, n, *feats.shape[1:])
+
+    def sweep_stage(state, feats):
+        return nnx.merge(graphdef, state).sweep(feats, masks, rig, cand)
+
+    def cost_volume(state, sampled, valid):
+        return nnx.merge(graphdef, state).cost_volume(sampled, valid.astype(sampled.dtype))
+
+    def unet(state, volume):
+        return nnx.merge(graphdef, state).unet(volume)
+
+    def regression(state, logits):
+        return regress(logits, cand, cfg.output_hw)
+
+    rows, x = [], (sur,)
+    for name, fn in (("features", features), ("sweep", sweep_stage),
+                     ("cost volume", cost_volume), ("U-Net", unet), ("regression", regression)):
+        ctx.log(f"stage {cfg.name} {name} ...")
+        args = (state, *x)
+        row, compiled, _ = _measure_program(ctx, lambda fn=fn, args=args: (compile_fn(fn, *args),
+                                                                           args))
+        out = compiled(*args)
+        x = out if isinstance(out, tuple) else (out,)
+        shapes = [tuple(a.shape) for a in jax.tree_util.tree_leaves(out)][:1]
+        rows.append({"preset": cfg.name, "stage": name, "output": "x".join(map(str, shapes[0])),
+                     **{k: v for k, v in row.items() if not k.startswith("rss")}})
+    total = sum(r["ms_median"] for r in rows)
+    for r in rows:
+        r["share"] = r["ms_median"] / total
+    return {"rows": rows, "sum_ms": total}
+
+
 # ------------------------------------------------------------------------------ JAX vs ORT
 
 def onnx_vs_jax(ctx: Context) -> dict:
@@ -224,6 +273,7 @@ def onnx_vs_jax(ctx: Context) -> dict:
                "onnx_mib": size_mib, "jax_compile_s": compile_s,
                **_timing_row(js, "jax_"), **_timing_row(os_, "ort_"),
                "ratio_jax_over_ort": ratio.median, "ratio_q1": ratio.q1, "ratio_q3": ratio.q3,
+               "ratio_iqr": f"{ratio.q1:.2f}-{ratio.q3:.2f}",
                "jax_rss_growth_mib": jax_mem.result()["rss_growth_mib"],
                "ort_rss_growth_mib": ort_mem.result()["rss_growth_mib"],
                "max_abs_diff_inv_distance": float(np.max(np.abs(jax_out - ort_out)))}
@@ -268,7 +318,7 @@ def candidates(ctx: Context) -> dict:
 # ------------------------------------------------------------------------------ RTSS baseline
 
 def _rtss_program(ctx: Context, cameras: int):
-    from gijax.baseline.rtss import RTSSConfig, rtss_predict
+    from gijax.baseline.rtss import RTSSConfig, _rtss
     from gijax.geometry.panorama import Panorama
 
     s = ctx.settings
@@ -277,13 +327,15 @@ def _rtss_program(ctx: Context, cameras: int):
     rng = np.random.default_rng(0)
     images = jnp.asarray(rng.uniform(size=(cameras, cam.height, cam.width, 3)), jnp.float32)
     masks = jnp.ones((cameras, cam.height, cam.width), jnp.float32)
-    cand = np.geomspace(0.5, 100.0, s.rtss_candidates).astype(np.float32)
+    cand = jnp.asarray(np.geomspace(0.5, 100.0, s.rtss_candidates), jnp.float32)
     pano = Panorama.hemisphere(*s.rtss_pano)
     config = RTSSConfig(name=f"RS-E{s.rtss_candidates}", num_candidates=s.rtss_candidates,
                         match_size=min(s.rtss_match, cam.width))
 
+    # The baseline's jitted core (rtss_predict checks the candidate values with numpy, so it
+    # cannot be traced); the checks are done once here instead.
     def run(images, masks):
-        return rtss_predict(rig, images, masks, cand, pano, config)["inv_distance"]
+        return _rtss(rig, images, masks, cand, pano, config)["inv_distance"]
 
     return compile_fn(run, images, masks), (images, masks), cam.width
 
@@ -391,7 +443,7 @@ def scaling(ctx: Context) -> dict:
         rows[(cams, cands)] = {"preset": base.name, "cameras": cams, "candidates": cands,
                                "compile_s": compile_s, **mem.result()}
     times = time_alternating({k: (lambda c=c, a=a: c(*a)) for k, (c, a) in progs.items()},
-                             warmup=max(ctx.warmup - 1, 0), reps=ctx.reps)
+                             warmup=max(ctx.warmup - 1, 0), reps=s.scaling_reps)
     for key, row in rows.items():
         stats = summarize(times[key])
         row.update(_timing_row(stats))
@@ -422,6 +474,7 @@ CASES = {
     "forward": forward,
     "onnx": onnx_vs_jax,
     "sweep": sweep,
+    "stages": stages,
     "candidates": candidates,
     "rtss": rtss,
     "train": train_step,

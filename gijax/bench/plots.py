@@ -49,7 +49,9 @@ def scaling_figure(result: dict, path: str | os.PathLike, rtss: dict | None = No
         ax2.plot([r["candidates"] for r in cands], [r["xla_peak_mib"] for r in cands], "s--",
                  color="tab:red", label=f"vs candidates ({c0} cameras)")
         ax2.set_xlabel("candidates", color="tab:red")
-        axes[2].set(xlabel="cameras", ylabel="XLA peak memory (MiB)", title="memory")
+        axes[2].set(xlabel="cameras", ylabel="XLA peak memory (MiB)")
+        axes[2].set_title("memory", pad=30)
+        axes[2].set_xticks(sorted(set(r["cameras"] for r in cams)))
         axes[2].legend(loc="upper left", fontsize=8)
         ax2.legend(loc="lower right", fontsize=8)
     for ax in axes[:2]:

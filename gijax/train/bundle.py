@@ -49,6 +49,7 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
     weights = _flatten(nnx.to_pure_dict(nnx.state(model)))
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    os.chmod(tmp, 0o755)  # mkdtemp makes it private; a bundle is meant to be shared
     try:
         shutil.copyfile(config_file, tmp / CONFIG_FILE)
         np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f" else v

@@ -1,0 +1,221 @@
+"""The benchmark toolkit: timing statistics (synthetic clocks and sleeps), alternation order,
+ratios and increments, memory accounting, cost analysis, writers, and the ``gijax bench``
+command wired end to end on one small case."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gijax.bench import cost, memory, report, timing
+from gijax.bench.rigs import polygon_positions
+
+
+class FakeClock:
+    """A clock that only moves when a fake workload says how long it took."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+    def work(self, seconds):
+        def fn():
+            self.now += seconds
+            return None
+        return fn
+
+
+def test_time_call_statistics_on_a_synthetic_clock():
+    clock = FakeClock()
+    durations = iter([7.0, 9.0,  # warm-up calls: never timed
+                      0.05, 0.01, 0.04, 0.02, 0.03])
+
+    def fn():
+        clock.now += next(durations)
+
+    stats, times = timing.time_call(fn, warmup=2, reps=5, timer=clock)
+    assert times == pytest.approx([0.05, 0.01, 0.04, 0.02, 0.03])
+    # Linear-interpolation quartiles of 0.01..0.05: 0.02, 0.03, 0.04.
+    assert stats.median == pytest.approx(0.03)
+    assert stats.q1 == pytest.approx(0.02) and stats.q3 == pytest.approx(0.04)
+    assert stats.iqr == pytest.approx(0.02)
+    assert (stats.min, stats.max) == pytest.approx((0.01, 0.05))
+    assert stats.mean == pytest.approx(0.03)
+    ms = stats.as_dict("x_", factor=1e3)
+    assert ms["x_median"] == pytest.approx(30.0) and ms["x_iqr"] == pytest.approx(20.0)
+    assert ms["x_n"] == 5
+
+
+def test_time_call_real_sleep_lower_bound():
+    # Sleeping guarantees at least the requested time; only that bound is asserted.
+    stats, times = timing.time_call(lambda: time.sleep(0.004), warmup=0, reps=3)
+    assert len(times) == 3 and stats.min >= 0.004
+    assert stats.q1 <= stats.median <= stats.q3 <= stats.max
+
+
+def test_time_call_blocks_on_results():
+    waited = []
+
+    class Pending:
+        def block_until_ready(self):
+            waited.append(1)
+            return self
+
+    timing.time_call(lambda: {"a": Pending(), "b": [Pending(), 3]}, warmup=1, reps=2)
+    assert len(waited) == 6  # 3 calls x 2 pending leaves
+
+
+def test_time_alternating_rotates_and_pairs():
+    clock = FakeClock()
+    order = []
+    cost_of = {"a": 0.2, "b": 0.1, "c": 0.4}
+
+    def make(name):
+        def fn():
+            order.append(name)
+            clock.now += cost_of[name]
+        return fn
+
+    times = timing.time_alternating({k: make(k) for k in "abc"}, warmup=1, reps=3, timer=clock)
+    assert order == list("abc") + list("abc") + list("bca") + list("cab")
+    assert times["a"] == pytest.approx([0.2] * 3) and times["c"] == pytest.approx([0.4] * 3)
+    r = timing.paired_ratio(times["c"], times["b"])
+    assert r.median == pytest.approx(4.0) and r.iqr == pytest.approx(0.0)
+
+
+def test_paired_ratio_and_increment():
+    r = timing.paired_ratio([2.0, 4.0, 9.0], [1.0, 2.0, 3.0])
+    assert r.median == pytest.approx(2.0) and r.max == pytest.approx(3.0)
+    inc = timing.linear_increment([5, 3, 4], [10 + 6 * 5, 10 + 6 * 3, 10 + 6 * 4])
+    assert inc["slope"] == pytest.approx(6.0) and inc["intercept"] == pytest.approx(10.0)
+    assert inc["steps"] == pytest.approx([6.0, 6.0]) and inc["counts"] == [3, 4, 5]
+    inc = timing.linear_increment([8, 16, 32], [1.0, 2.0, 6.0])
+    assert inc["steps"] == pytest.approx([1 / 8, 4 / 16])
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(ValueError, match="at least one"):
+        timing.summarize([])
+    with pytest.raises(ValueError, match="finite"):
+        timing.summarize([1.0, float("nan")])
+    with pytest.raises(ValueError, match="reps"):
+        timing.time_call(lambda: None, reps=0)
+    with pytest.raises(ValueError, match="equal length"):
+        timing.paired_ratio([1.0], [1.0, 2.0])
+    with pytest.raises(ValueError, match="distinct"):
+        timing.linear_increment([3, 3], [1.0, 2.0])
+
+
+def test_matmul_cost_analysis_and_memory_analysis():
+    m, k, n = 24, 7, 5
+    a, b = jnp.ones((m, k)), jnp.ones((k, n))
+    compiled = cost.compile_fn(lambda x, y: x @ y, a, b)
+    c = cost.cost_of(compiled)
+    assert c["flops"] == 2 * m * n * k
+    mem = memory.compiled_memory(compiled)
+    assert mem["argument_bytes"] == 4 * (m * k + k * n)
+    assert mem["output_bytes"] == 4 * m * n
+    assert mem["peak_bytes"] >= mem["argument_bytes"] + mem["output_bytes"] - mem["alias_bytes"]
+
+
+def test_efficiency_arithmetic():
+    e = cost.efficiency({"flops": 4e9, "bytes_accessed": 1e9}, 0.5,
+                        {"flops_per_s": 16e9, "bytes_per_s": 4e9})
+    assert e["gflops_per_s"] == pytest.approx(8.0) and e["gbytes_per_s"] == pytest.approx(2.0)
+    assert e["frac_peak_flops"] == pytest.approx(0.5) and e["frac_bandwidth"] == pytest.approx(0.5)
+    assert e["roofline_s"] == pytest.approx(0.25) and e["frac_roofline"] == pytest.approx(0.5)
+    assert e["flops_per_byte"] == pytest.approx(4.0)
+
+
+def test_peak_rss_sees_an_allocation():
+    with memory.PeakRSS() as peak:
+        block = np.ones(64 * 2**20 // 8)  # 64 MiB, every page written
+        time.sleep(0.01)
+    del block
+    assert peak.growth_bytes >= 48 * 2**20
+    assert memory.device_memory() == {} or "bytes_in_use" in memory.device_memory()
+
+
+def test_json_and_markdown_writers(tmp_path):
+    path = report.write_json(tmp_path / "sub" / "r.json",
+                             {"a": np.float32(1.5), "b": np.arange(3), "c": float("nan"),
+                              "d": (np.int64(2), None)})
+    assert json.loads(path.read_text()) == {"a": 1.5, "b": [0, 1, 2], "c": None, "d": [2, None]}
+    assert [p.name for p in path.parent.iterdir()] == ["r.json"]  # no temp file left
+    rows = [{"name": "x|y", "ms": 1.234, "n": 3}, {"name": "z", "ms": None, "n": 10}]
+    cols = [("name", "name"), ("time ms", "ms", ".1f"), ("n", "n"),
+            ("pct", "ms", lambda v: f"{100 * v:.0f}%")]
+    assert report.markdown_table(rows, cols) == (
+        "| name | time ms | n | pct |\n"
+        "| --- | ---: | ---: | ---: |\n"
+        "| x\\|y | 1.2 | 3 | 123% |\n"
+        "| z |  | 10 |  |")
+    text = report.text_table(rows, cols).splitlines()
+    assert text[0].split() == ["name", "time", "ms", "n", "pct"] and len(text) == 4
+
+
+def test_polygon_rig_positions():
+    for n in (3, 4, 5):
+        p = polygon_positions(n, 1.0)
+        edges = np.linalg.norm(p - np.roll(p, 1, axis=0), axis=1)
+        assert edges == pytest.approx(np.ones(n))
+        assert p.mean(0) == pytest.approx(np.zeros(3), abs=1e-12)
+    with pytest.raises(ValueError, match="camera count"):
+        polygon_positions(1)
+
+
+def test_select_device():
+    from gijax.bench.suite import select_device
+
+    assert select_device("cpu").platform == "cpu"
+    with pytest.raises(ValueError, match="cpu' or 'gpu"):
+        select_device("tpu")
+    try:
+        dev = select_device("gpu")
+    except ValueError as exc:
+        assert "no GPU" in str(exc)
+    else:
+        assert dev.platform == "gpu"
+
+
+def test_scaling_figure_writes_png(tmp_path):
+    from gijax.bench.plots import scaling_figure
+
+    def row(c, d, ms):
+        return {"preset": "P", "cameras": c, "candidates": d, "ms_median": ms, "ms_q1": ms - 1,
+                "ms_q3": ms + 1, "xla_peak_mib": 10.0 * c + d}
+
+    rows = [row(3, 16, 10), row(4, 16, 12), row(5, 16, 14), row(3, 8, 6), row(3, 32, 19)]
+    rtss = {"rows": [row(3, 32, 50), row(4, 32, 70)]}
+    out = scaling_figure({"rows": rows}, tmp_path / "s.png", rtss=rtss)
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_gijax_bench_command_writes_json_and_markdown(tmp_path, capsys):
+    from gijax.cli import main
+
+    out = tmp_path / "bench"
+    rc = main(["bench", "--suite", "quick", "--cases", "candidates", "--reps", "2",
+               "--warmup", "0", "--out", str(out), "--quiet"])
+    assert rc == 0
+    result = json.loads((out / "bench.json").read_text())
+    assert list(result["cases"]) == ["candidates"]
+    row = result["cases"]["candidates"]["rows"][0]
+    assert (row["rig"], row["cameras"], row["n"]) == ("paper-test2", 3, 16)
+    assert row["solve_ms_median"] > 0 and row["grad_ms_median"] > 0
+    cal = result["calibration"]
+    assert cal["matmul"]["xla_flops"] == 2 * cal["matmul"]["n"] ** 3
+    assert cal["limits"]["flops_per_s"] > 0 and cal["limits"]["bytes_per_s"] > 0
+    assert result["machine"]["backend"] == "cpu" and "jax" in result["machine"]["versions"]
+    md = (out / "bench.md").read_text()
+    assert "## Rig-aware GI candidates" in md and "| paper-test2 | 3 | 16 |" in md
+    assert "## Calibration" in md and "git revision" in md
+    assert "quick suite" in capsys.readouterr().out
+    with pytest.raises(SystemExit):  # argparse rejects an unknown case name
+        main(["bench", "--cases", "nope"])

@@ -1,0 +1,250 @@
+"""The paper-table experiments: both scripts end to end at the smoke scale, resume, claims, metrics.
+
+The smoke scale checks the pipeline (data -> training -> evaluation -> tables, figures and
+claims), not the paper's claims: its models are tiny and barely trained.
+"""
+
+import json
+import math
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from experiments import common as C
+from experiments import new_layout, same_layout
+
+PROVENANCE_FIELDS = ("command", "seed", "git_revision", "durations_s", "machine", "scale",
+                     "datasets", "data_seeds")
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    """Both scripts at --scale smoke in one work folder, then both again (the resume)."""
+    root = tmp_path_factory.mktemp("experiments")
+    work = root / "work"
+    outs = {"same": root / "out" / "same", "new": root / "out" / "new"}
+    mods = {"same": same_layout, "new": new_layout}
+    seconds, docs, snapshots = {}, {}, {}
+    for rnd in ("first", "second"):
+        for name in ("same", "new"):
+            t0 = time.perf_counter()
+            rc = mods[name].main(["--scale", "smoke", "--work", str(work),
+                                  "--out", str(outs[name])])
+            assert rc == 0
+            seconds[(rnd, name)] = time.perf_counter() - t0
+            docs[(rnd, name)] = json.loads(outs[name].with_suffix(".json").read_text())
+        snapshots[rnd] = {str(p.relative_to(work / "runs")): p.stat().st_mtime_ns
+                          for p in sorted((work / "runs").rglob("*")) if p.is_file()}
+    print("smoke wall seconds:", {f"{a}/{b}": round(s, 1) for (a, b), s in seconds.items()})
+    return {"work": work, "outs": outs, "docs": docs, "seconds": seconds,
+            "snapshots": snapshots}
+
+
+def _check_metrics(row):
+    for key in ("mae", "rmse", "ssim", "coverage", "time_ms", "peak_mb"):
+        assert row[key] is not None and math.isfinite(row[key]), (row["model"], key, row[key])
+    # Inverse distance lies in [0.01, 2] 1/m, so errors cannot exceed 2; RMSE >= MAE.
+    assert 0.0 < row["mae"] <= row["rmse"] <= 2.0
+    assert -1.0 <= row["ssim"] <= 1.0
+    assert 0.0 < row["coverage"] <= 1.0
+    assert row["time_ms"] > 0 and row["peak_mb"] > 0
+    assert row["samples"] == 2
+
+
+def test_same_layout_table(smoke):
+    doc = smoke["docs"][("first", "same")]
+    assert [r["model"] for r in doc["rows"]] == ["RS-E16", "G16VV"]
+    for r in doc["rows"]:
+        _check_metrics(r)
+    g16vv = doc["rows"][1]
+    assert g16vv["kind"] == "learned" and g16vv["preset"] == "G16VV-cpu"
+    assert len(g16vv["candidates"]) == 16 and np.all(np.diff(g16vv["candidates"]) > 0)
+    md = smoke["outs"]["same"].with_suffix(".md").read_text()
+    for name in ("RS-E16", "G16VV-cpu", "## Claims", "## Provenance", "git revision"):
+        assert name in md
+    assert [c["status"] for c in doc["claims"]][0] == "N/A"      # no E8 / G8 at this scale
+    assert doc["claims"][1]["status"] in ("PASS", "FAIL")
+    img = cv2.imread(str(smoke["outs"]["same"].with_suffix(".png")))
+    assert img is not None and img.shape[0] > 200 and img.shape[1] > 400
+
+
+def test_new_layout_table(smoke):
+    doc = smoke["docs"][("first", "new")]
+    keys = [(r["layout"], r["model"], r["eval_candidates"]) for r in doc["rows"]]
+    assert keys == [("paper-test2", "RS-E16", "ev"), ("paper-test2", "G16VV", "train"),
+                    ("paper-test2", "G16VV", "rig"), ("paper-test3", "RS-E16", "ev"),
+                    ("paper-test3", "G16VV", "train"), ("paper-test3", "G16VV", "rig")]
+    for r in doc["rows"]:
+        _check_metrics(r)
+    by = {k: r for k, r in zip(keys, doc["rows"])}
+    # The recomputed list (rig-aware GI for the test rig) differs from the training list and
+    # spans the same range.
+    for layout in ("paper-test2", "paper-test3"):
+        train = np.array(by[(layout, "G16VV", "train")]["candidates"])
+        new = np.array(by[(layout, "G16VV", "rig")]["candidates"])
+        assert train.shape == new.shape == (16,)
+        assert not np.allclose(train, new)
+        assert new[0] == pytest.approx(0.5) and new[-1] == pytest.approx(100.0)
+    assert by[("paper-test3", "G16VV", "train")]["cameras"] == 4
+    assert doc["claims"][0]["claim"].startswith("(b)")
+    assert set(doc["claims"][0]["numbers"]) == {"paper-test2/G16VV", "paper-test3/G16VV"}
+    for layout in ("paper-test2", "paper-test3"):
+        png = smoke["outs"]["new"].with_name(f"new_{layout}.png")
+        assert cv2.imread(str(png)) is not None
+
+
+def test_provenance(smoke):
+    for name in ("same", "new"):
+        prov = smoke["docs"][("first", name)]["provenance"]
+        for field in PROVENANCE_FIELDS:
+            assert field in prov, field
+        assert prov["command"].startswith(f"python experiments/{name}_layout.py --scale smoke")
+        assert prov["seed"] == 0 and prov["scale"] == "smoke"
+        assert prov["machine"]["cpus"] >= 1 and prov["machine"]["jax"]
+        assert prov["machine"]["platform"]
+        assert len(prov["git_revision"]) >= 7
+        assert prov["durations_s"]["total"] > 0
+        # Held-out test scenes: a different dataset seed from the training data.
+        seeds = {d["role"]: d["seed"] for d in prov["datasets"]}
+        assert all(seeds[t] != seeds["train"] for t in seeds if t.startswith("paper-test"))
+
+
+def test_rerun_reuses_everything(smoke):
+    first, second = smoke["snapshots"]["first"], smoke["snapshots"]["second"]
+    assert first == second, "the second run rewrote files of a finished training"
+    for name in ("same", "new"):
+        doc = smoke["docs"][("second", name)]
+        assert all(r["reused"] for r in doc["training"].values())
+        assert all(r["reused"] for r in doc["rows"] if r["status"] == "ok")
+        # Identical metrics: nothing was recomputed.
+        before = smoke["docs"][("first", name)]["rows"]
+        assert [r["mae"] for r in doc["rows"]] == [r["mae"] for r in before]
+
+
+def test_held_out_check_rejects_shared_seeds(smoke):
+    assert C.check_held_out(smoke["work"], ["paper-test1"]) == {"paper-test1": 0}
+    with pytest.raises(ValueError, match="shares scene seeds"):
+        C.check_held_out(smoke["work"], ["train"])
+
+
+# --------------------------------------------------------------------------- pieces
+
+
+class _Reader:
+    def __init__(self, samples):
+        self.samples = samples
+        self.root = "memory"
+
+    def __len__(self):
+        return len(self.samples)
+
+    def __getitem__(self, i):
+        return self.samples[i]
+
+
+def test_evaluate_matches_numpy_reference():
+    rng = np.random.default_rng(3)
+    cand = np.geomspace(0.5, 100.0, 8)
+    samples, preds, ests = [], [], []
+    for _ in range(2):
+        dist = rng.uniform(0.3, 150.0, (8, 16)).astype(np.float32)
+        dist[0, :3] = 1e6                      # sky: clamped to the far candidate
+        dist[1, 0] = np.nan                    # unusable label
+        samples.append({"images": None, "masks": None, "pano_distance": dist})
+        preds.append(rng.uniform(0.0, 2.0, (8, 16)).astype(np.float32))
+        est = rng.uniform(size=(8, 16)) > 0.2
+        ests.append(est)
+    calls = iter(zip(preds, ests))
+    metrics, first = C.evaluate(_Reader(samples),
+                                C.Predictor(lambda im, m: next(calls), cand, 1.0))
+    errs, est_count, lab_count = [], 0, 0
+    for s, p, e in zip(samples, preds, ests):
+        d = s["pano_distance"].astype(np.float64)
+        lab = np.isfinite(d) & (d > 0)
+        target = np.clip(1.0 / np.where(lab, d, 100.0), 1 / 100.0, 1 / 0.5)
+        use = lab & e
+        errs.append((p - target)[use])
+        est_count += use.sum()
+        lab_count += lab.sum()
+    errs = np.concatenate(errs)
+    assert metrics["mae"] == pytest.approx(np.abs(errs).mean(), rel=1e-5)
+    assert metrics["rmse"] == pytest.approx(np.sqrt((errs ** 2).mean()), rel=1e-5)
+    assert metrics["coverage"] == pytest.approx(est_count / lab_count)
+    assert metrics["samples"] == 2
+    np.testing.assert_array_equal(np.isnan(first), ~ests[0])
+
+
+def _rows(**mae):
+    return [{"model": m, "kind": "classical" if m.startswith("RS") else "learned",
+             "status": "ok", "mae": v} for m, v in mae.items()]
+
+
+def test_claim_a_and_c_verdicts():
+    assert C.claim_gi_at_least_ev(_rows(E8=0.02, G8=0.02))["status"] == "PASS"
+    fail = C.claim_gi_at_least_ev(_rows(E8=0.020, G8=0.025))
+    assert fail["status"] == "FAIL" and fail["numbers"] == {"G8": 0.025, "E8": 0.020}
+    assert "-25.0 %" in fail["detail"]
+    assert C.claim_gi_at_least_ev(_rows(E8=0.02))["status"] == "N/A"
+    c = C.claim_learned_beats_classical(_rows(**{"RS-E16": 0.10, "RS-E32": 0.08, "E8": 0.05,
+                                                 "G8": 0.06}))
+    assert c["status"] == "PASS" and c["numbers"]["all"]["ratio"] == pytest.approx(0.06 / 0.08)
+    c = C.claim_learned_beats_classical(_rows(**{"RS-E32": 0.08, "G8": 0.061}))
+    assert c["status"] == "FAIL"                     # 0.7625 > 0.75: not clearly better
+
+
+def test_claim_b_pairs_and_reductions():
+    rows = [{"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
+             "eval_candidates": "train", "mae": 0.030},
+            {"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
+             "eval_candidates": "rig", "mae": 0.020},
+            {"layout": "paper-test3", "model": "E16", "kind": "learned", "status": "n/a",
+             "eval_candidates": "-", "mae": None},
+            {"layout": "paper-test3", "model": "G16VV", "kind": "learned", "status": "ok",
+             "eval_candidates": "train", "mae": 0.024},
+            {"layout": "paper-test3", "model": "G16VV", "kind": "learned", "status": "ok",
+             "eval_candidates": "rig", "mae": 0.016}]
+    b = C.claim_recomputed_candidates(rows)
+    assert b["status"] == "PASS"
+    assert b["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(100 / 3)
+    assert b["numbers"]["paper-test3/G16VV"]["reduction_percent"] == pytest.approx(100 / 3)
+    rows[1]["mae"] = 0.031
+    assert C.claim_recomputed_candidates(rows)["status"] == "FAIL"
+    # Rows outside the scope are reported but do not decide the verdict.
+    scoped = C.claim_recomputed_candidates(rows, lambda r: r["model"] != "G16")
+    assert scoped["status"] == "PASS" and "beside the paper's scope: G16" in scoped["detail"]
+    assert scoped["numbers"]["paper-test2/G16"]["in_scope"] is False
+
+
+def test_concat_models_cannot_take_four_cameras():
+    from gijax.nn.presets import get_preset
+
+    assert "exactly 3 cameras" in new_layout.unsupported(get_preset("E16-cpu"), 4)
+    assert new_layout.unsupported(get_preset("E16-cpu"), 3) is None
+    assert new_layout.unsupported(get_preset("G16VV-cpu"), 4) is None
+
+
+def test_results_section_update(tmp_path):
+    md = tmp_path / "RESULTS.md"
+    md.write_text("# R\n\n<!-- t:begin -->\nold\n<!-- t:end -->\n\nkept\n")
+    C.update_results_section(md, "t", "new table")
+    assert md.read_text() == "# R\n\n<!-- t:begin -->\nnew table\n<!-- t:end -->\n\nkept\n"
+    with pytest.raises(ValueError, match="markers"):
+        C.update_results_section(md, "other", "x")
+
+
+def test_scales_are_consistent():
+    from gijax.nn.presets import get_preset
+
+    for scale in C.SCALES.values():
+        assert set(scale.test_samples) == set(C.TEST_RIGS)
+        for model in scale.models:
+            mc = get_preset(C.preset_name(scale, model))
+            if not scale.tiny:
+                # The label panorama is the network's output.
+                assert tuple(mc.output_hw) == tuple(scale.pano_hw)
+                assert mc.image_scale == scale.image_scale
+    assert C.SCALES["cpu"].models == C.MODELS
+    assert C.SCALES["smoke"].steps < 10
