@@ -35,7 +35,6 @@ import platform
 import resource
 import shlex
 import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Callable, Optional
@@ -98,13 +97,13 @@ class Scale:
 
 SCALES = {
     "smoke": Scale(
-        name="smoke", image_scale=0.125, pano_hw=(16, 64), train_samples=4, val_samples=0,
+        name="smoke", image_scale=0.125, pano_hw=(16, 64), train_samples=4, val_samples=2,
         test_samples={"paper-test1": 2, "paper-test2": 2, "paper-test3": 2},
         models=("G16VV",), preset_suffix="-cpu", tiny=True, steps=3, batch=2, lr=2e-4,
         val_every=0, ckpt_every=0, rtss_same=("RS-E16",), rtss_new=("RS-E16",), progress=False,
-        summary=("pipeline check only, not evidence: 128 px images, 4 training samples, 2 test "
-                 "samples per rig, G16VV shrunk to a few thousand parameters and trained 3 "
-                 "steps, RTSS as RS-E16 only")),
+        summary=("pipeline check only, not evidence: 128 px images, 4 training, 2 validation "
+                 "and 2 test samples per rig, G16VV shrunk to 66 thousand parameters and "
+                 "trained 3 steps, RTSS as RS-E16 only")),
     "cpu": Scale(
         name="cpu", image_scale=0.25, pano_hw=(32, 128), train_samples=400, val_samples=24,
         test_samples={"paper-test1": 64, "paper-test2": 64, "paper-test3": 64},
@@ -458,12 +457,13 @@ def rtss_predictor(rig, preset: str, pano_hw: tuple) -> Predictor:
     return Predictor(fn, cand, xla_peak_mb(compiled))
 
 
-def evaluate(reader, predictor: Predictor, keep_first: bool = True) -> tuple[dict, Optional[np.ndarray]]:
+def evaluate(reader, predictor: Predictor) -> tuple[dict, np.ndarray]:
     """Metrics of ``predictor`` over every sample of ``reader`` (one sample per call).
 
-    Returns (metrics, the first sample's inverse distance (H, W) or None). ``time_ms`` is the
-    median wall time of one call (the first, compiling call is not timed: compilation happens
-    before); ``coverage`` is the share of labelled pixels with an estimate.
+    Returns (metrics, the first sample's inverse distance (H, W), NaN where not estimated).
+    ``time_ms`` is the median wall time of one call (the predictor is compiled beforehand, so
+    no call includes compilation); ``coverage`` is the share of labelled pixels with an
+    estimate.
     """
     import jax.numpy as jnp
 
@@ -490,7 +490,7 @@ def evaluate(reader, predictor: Predictor, keep_first: bool = True) -> tuple[dic
         sums = batch_sums(jnp.asarray(filled[None]), jnp.asarray(dist[None]),
                           jnp.asarray((valid & est)[None]), cand)
         parts.append({k: np.asarray(v) for k, v in sums.items()})
-        if keep_first and first is None:
+        if first is None:
             first = np.where(est, inv, np.nan)
     metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
     metrics["coverage"] = covered / max(labelled, 1.0)

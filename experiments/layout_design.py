@@ -136,9 +136,9 @@ def validate(layouts: dict, spec_of: dict, cfg: dict, ckpt: str | None, seed: in
     model = None
     if ckpt:
         from gijax.predict import predict
-        from gijax.train.trainer import load_for_inference
+        from gijax.train.bundle import load_model
 
-        model, mc, _ = load_for_inference(ckpt)
+        model, mc, _ = load_model(ckpt)  # a run folder or an inference bundle
         scale = mc.image_scale
     else:
         from gijax.baseline.rtss import rtss_predict_sample

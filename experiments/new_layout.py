@@ -129,7 +129,7 @@ def main(argv=None) -> int:
     started = time.time()
     durations = {}
 
-    data = S.prepare(args, scale, work, list(LAYOUTS), durations)
+    data = S.prepare(scale, work, list(LAYOUTS), durations)
     runs = S.train_all(scale, work, args.seed, durations)
     C.log(f"evaluating on {', '.join(LAYOUTS)}")
     rows, preds = evaluate_rows(scale, work, runs, durations)

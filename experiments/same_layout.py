@@ -33,7 +33,7 @@ NAME = "same_layout"
 TEST = "paper-test1"
 
 
-def prepare(args, scale: C.Scale, work: Path, tests: list, durations: dict) -> list:
+def prepare(scale: C.Scale, work: Path, tests: list, durations: dict) -> list:
     """Datasets (training, validation, ``tests``) and the trained models; dataset records."""
     t0 = time.perf_counter()
     roles = ["train"] + (["val"] if scale.val_samples else []) + list(tests)
@@ -112,7 +112,7 @@ def main(argv=None) -> int:
     started = time.time()
     durations = {}
 
-    data = prepare(args, scale, work, [TEST], durations)
+    data = prepare(scale, work, [TEST], durations)
     runs = train_all(scale, work, args.seed, durations)
     C.log(f"evaluating on {TEST}")
     rows, preds = evaluate_rows(scale, work, runs, durations)
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     prov = C.provenance("same_layout.py", argv, scale, args.seed, work, started, durations, data)
     prov["test_styles"] = {TEST: C.style_counts(test_dir)}
     doc = {"table": "same_layout", "test_data": TEST, "rows": rows, "claims": claims,
-           "training": {m: {k: v for k, v in r.items()} for m, r in runs.items()},
+           "training": runs,
            "figure": figure.name, "provenance": prov}
     md = "\n\n".join([
         f"Models trained on `paper-train` scenes and tested on {sample_count(rows)} held-out "

@@ -6,6 +6,7 @@ claims), not the paper's claims: its models are tiny and barely trained.
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -13,8 +14,11 @@ import cv2
 import numpy as np
 import pytest
 
-from experiments import common as C
-from experiments import new_layout, same_layout
+# The experiment scripts live beside the package, not in it.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from experiments import common as C  # noqa: E402
+from experiments import new_layout, same_layout  # noqa: E402
 
 PROVENANCE_FIELDS = ("command", "seed", "git_revision", "durations_s", "machine", "scale",
                      "datasets", "data_seeds")
@@ -54,6 +58,7 @@ def _check_metrics(row):
     assert row["samples"] == 2
 
 
+@pytest.mark.slow
 def test_same_layout_table(smoke):
     doc = smoke["docs"][("first", "same")]
     assert [r["model"] for r in doc["rows"]] == ["RS-E16", "G16VV"]
@@ -61,6 +66,9 @@ def test_same_layout_table(smoke):
         _check_metrics(r)
     g16vv = doc["rows"][1]
     assert g16vv["kind"] == "learned" and g16vv["preset"] == "G16VV-cpu"
+    # Validated during training, so the evaluation loaded the best validated checkpoint.
+    assert doc["training"]["G16VV"]["validation"]["samples"] == 2
+    assert (smoke["work"] / "runs" / "G16VV-cpu" / "best").is_dir()
     assert len(g16vv["candidates"]) == 16 and np.all(np.diff(g16vv["candidates"]) > 0)
     md = smoke["outs"]["same"].with_suffix(".md").read_text()
     for name in ("RS-E16", "G16VV-cpu", "## Claims", "## Provenance", "git revision"):
@@ -71,6 +79,7 @@ def test_same_layout_table(smoke):
     assert img is not None and img.shape[0] > 200 and img.shape[1] > 400
 
 
+@pytest.mark.slow
 def test_new_layout_table(smoke):
     doc = smoke["docs"][("first", "new")]
     keys = [(r["layout"], r["model"], r["eval_candidates"]) for r in doc["rows"]]
@@ -96,6 +105,7 @@ def test_new_layout_table(smoke):
         assert cv2.imread(str(png)) is not None
 
 
+@pytest.mark.slow
 def test_provenance(smoke):
     for name in ("same", "new"):
         prov = smoke["docs"][("first", name)]["provenance"]
@@ -112,6 +122,7 @@ def test_provenance(smoke):
         assert all(seeds[t] != seeds["train"] for t in seeds if t.startswith("paper-test"))
 
 
+@pytest.mark.slow
 def test_rerun_reuses_everything(smoke):
     first, second = smoke["snapshots"]["first"], smoke["snapshots"]["second"]
     assert first == second, "the second run rewrote files of a finished training"
@@ -124,6 +135,7 @@ def test_rerun_reuses_everything(smoke):
         assert [r["mae"] for r in doc["rows"]] == [r["mae"] for r in before]
 
 
+@pytest.mark.slow
 def test_held_out_check_rejects_shared_seeds(smoke):
     assert C.check_held_out(smoke["work"], ["paper-test1"]) == {"paper-test1": 0}
     with pytest.raises(ValueError, match="shares scene seeds"):
