@@ -646,6 +646,18 @@ def save_figure(path: Path, sample: dict, panels: list, title: str) -> None:
 
 # --------------------------------------------------------------------------- arguments
 
+def parse_script_args(doc: str, name: str, argv: list):
+    """The command line shared by the table scripts -> (args, scale, work, out, results)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n".join(doc.splitlines()[2:]))
+    add_common_arguments(parser, name)
+    args = parser.parse_args(argv)
+    return (args, SCALES[args.scale], *resolve_paths(args, name))
+
+
 def add_common_arguments(parser, default_name: str) -> None:
     parser.add_argument("--scale", choices=list(SCALES), default="smoke",
                         help="smoke: pipeline check (about a minute); cpu: the reported figures "

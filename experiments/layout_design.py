@@ -140,6 +140,7 @@ def validate(layouts: dict, spec_of: dict, cfg: dict, ckpt: str | None, seed: in
 
         model, mc, _ = load_model(ckpt)  # a run folder or an inference bundle
         scale = mc.image_scale
+        pano = Panorama.hemisphere(*mc.output_hw)  # labels at the network's output size
     else:
         from gijax.baseline.rtss import rtss_predict_sample
 
@@ -173,7 +174,8 @@ def validate(layouts: dict, spec_of: dict, cfg: dict, ckpt: str | None, seed: in
         rows.append({"layout": name, "cameras": spec.num_cameras,
                      "mae": sum(s[0] for s in sums) / max(pix, 1),
                      "valid_fraction": float(np.mean([s[2] for s in sums])),
-                     "samples": cfg["samples"], "seconds": time.perf_counter() - t0})
+                     "samples": cfg["samples"], "panorama": f"{pano.height}x{pano.width}",
+                     "seconds": time.perf_counter() - t0})
         print(f"  validated {name}: MAE {rows[-1]['mae']:.4f} 1/m", flush=True)
     return rows
 
@@ -280,7 +282,7 @@ def main(argv=None) -> int:
     md += ["", f"## Validation: {predictor}", "",
            f"{cfg['samples']} rendered scene(s) per layout, images at scale "
            f"{cfg['image_scale'] if not args.ckpt else 'of the model'}, panorama "
-           f"{cfg['pano_h']}x{4 * cfg['pano_h']}; candidates recomputed for each rig.", "",
+           f"{val[0]['panorama'] if val else '-'}; candidates recomputed for each rig.", "",
            "| layout | objective J | coverage | MAE (1/m) | valid | positions (m) |",
            "|---|---|---|---|---|---|"]
     for r in val:

@@ -19,7 +19,6 @@ evaluations from ``--work`` and resumes interrupted ones. ``new_layout.py`` reus
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -102,13 +101,7 @@ def table_markdown(rows: list) -> str:
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter,
-                                epilog="\n".join(__doc__.splitlines()[2:]))
-    C.add_common_arguments(p, NAME)
-    args = p.parse_args(argv)
-    scale = C.SCALES[args.scale]
-    work, out, results = C.resolve_paths(args, NAME)
+    args, scale, work, out, results = C.parse_script_args(__doc__, NAME, argv)
     started = time.time()
     durations = {}
 

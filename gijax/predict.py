@@ -23,7 +23,7 @@ from flax import nnx
 
 from gijax.geometry.panorama import Panorama, ray_grid
 from gijax.geometry.rig import Rig, project_rig_points, scale_rig
-from gijax.model import OmniStereoNet, check_candidates, create_model
+from gijax.model import OmniStereoNet, check_candidates
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
 from gijax.sweep.surrogate import as_float_image, check_images, surrogate_images

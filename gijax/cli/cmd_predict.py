@@ -133,7 +133,7 @@ def preset_config(spec: str):
 def run(args) -> int:
     from gijax.io.rigfile import load_rig
     from gijax.model import create_model
-    from gijax.predict import load_model, predict, write_prediction
+    from gijax.predict import load_model, predict
 
     rig = load_rig(args.rig)
     if len(args.images) != rig.num_cameras:
