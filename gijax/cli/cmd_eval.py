@@ -21,13 +21,13 @@ def register(subparsers) -> None:
             "labels clamped to the candidate range), the bad-pixel rates > 0.1 and > 0.4 1/m, "
             "time per sample and peak memory. --rig evaluates on another rig than the dataset's "
             "(the paper's layout-change experiment) and --candidates picks the list: the "
-            "training list, the preset's kind recomputed for the evaluation rig, EV, or a file."),
+            "training list, rig-aware GI recomputed for the evaluation rig, EV, or a file."),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--ckpt", required=True, help="run folder written by 'gijax train'")
+    p.add_argument("--ckpt", required=True, help="run folder written by 'gijax train', or an inference bundle")
     p.add_argument("--data", required=True, help="dataset folder")
     p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
     p.add_argument("--candidates", default="train",
-                   help="'train' (training list), 'rig' (preset kind recomputed for the rig), "
+                   help="'train' (training list), 'rig' (rig-aware GI recomputed for the rig), "
                         "'ev', or a JSON / text file of distances in metres")
     p.add_argument("--which", default="best", choices=["best", "latest"],
                    help="checkpoint to load: best validated or newest periodic")

@@ -78,20 +78,10 @@ def read_image(path: str, grey: bool = False) -> np.ndarray:
 
 
 def read_candidates(path: str) -> np.ndarray:
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"{path}: no such candidate file (expected 'train', 'rig' or a "
-                                f"file)")
-    text = p.read_text().strip()
-    try:
-        values = json.loads(text) if text.startswith(("[", "{")) else [
-            float(tok) for tok in text.replace(",", " ").split()]
-        if isinstance(values, dict):
-            values = values["candidates"]
-        return np.asarray(values, np.float64).reshape(-1)
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: expected distances in metres (one per line or a JSON list); "
-                         f"{exc}") from exc
+    """Distances (metres) from a candidate file: a JSON list or one number per line."""
+    from gijax.cli.cmd_train import read_candidate_file
+
+    return np.asarray(read_candidate_file(path), np.float64)
 
 
 def resolve_candidates(spec: str, config, rig, train_candidates) -> tuple[np.ndarray, str]:

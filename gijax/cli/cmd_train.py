@@ -53,7 +53,8 @@ def register(subparsers) -> None:
 
 
 def read_candidate_file(path: str) -> list:
-    """A JSON list of distances (metres) or a text file with one distance per line."""
+    """A JSON list of distances (metres) or a text file of numbers (one per line or comma
+    separated); a JSON object is read through its ``candidates`` key."""
     f = Path(path)
     if not f.is_file():
         raise FileNotFoundError(f"candidate file {f} does not exist")
@@ -62,7 +63,7 @@ def read_candidate_file(path: str) -> list:
         values = json.loads(text)
     except json.JSONDecodeError:
         try:
-            values = [float(t) for t in text.split()]
+            values = [float(t) for t in text.replace(",", " ").split()]
         except ValueError as exc:
             raise ValueError(f"candidate file {f}: expected a JSON list or one number per line "
                              f"({exc})") from exc
