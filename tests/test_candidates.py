@@ -302,3 +302,84 @@ def test_cli_json_and_plot(tmp_path):
         rc = main(["candidates", "--rig", "paper-train", "--kind", "gi-closed", "--json"])
     np.testing.assert_allclose(json.loads(buf.getvalue())["candidates"], G16, rtol=1e-12)
     assert main(["candidates", "--rig", "paper-train", "-n", "1"]) == 1
+
+
+# --------------------------------------------------------------------------- camera spacing
+
+def test_spacing_list_is_released_g16_on_training_rig(rigs):
+    from gijax.candidates import camera_spacing, spacing_gi_candidates
+
+    # The training triangle's side is the released lists' baseline (float32 translations).
+    assert float(camera_spacing(rigs["paper-train"])) == pytest.approx(TRAIN_BASELINE, rel=1e-7)
+    np.testing.assert_allclose(spacing_gi_candidates(rigs["paper-train"], 16), G16, rtol=1e-7)
+    np.testing.assert_allclose(candidates_for("gi-spacing", 8, rigs["paper-train"]), G8,
+                               rtol=1e-7)
+    # The 1 m layouts: the closed form at b = 1 m, which differs from the training list.
+    for name in ("paper-test2", "paper-test3"):
+        assert float(camera_spacing(rigs[name])) == pytest.approx(1.0, rel=1e-7)
+        np.testing.assert_allclose(candidates_for("gi-spacing", 16, rigs[name]),
+                                   gi_candidates(16, 0.5, 100.0, 1.0), rtol=1e-7)
+
+
+@settings(max_examples=25, deadline=None)
+@given(pts=st.lists(st.tuples(*[st.floats(-2.0, 2.0)] * 3), min_size=2, max_size=6))
+def test_camera_spacing_matches_brute_force(pts):
+    from gijax.candidates import camera_spacing
+
+    t = np.asarray(pts, np.float64)
+    gaps = [min(np.linalg.norm(t[i] - t[j]) for j in range(len(t)) if j != i)
+            for i in range(len(t))]
+    if min(gaps) < 1e-3:                       # coincident centres are rejected (tested below)
+        return
+    assert float(camera_spacing(t)) == pytest.approx(float(np.mean(gaps)), rel=1e-12)
+
+
+def test_camera_spacing_gradient_matches_finite_differences():
+    from gijax.candidates import spacing_gi_candidates
+
+    rig = builtin_rig("paper-test3")
+    t0 = np.asarray(rig.translations, np.float64) + np.array([[0.1, 0, 0], [0, 0.05, 0],
+                                                              [0, 0, 0], [0.02, 0.03, 0]])
+
+    def f(t):
+        return jnp.sum(jnp.log(spacing_gi_candidates(rig.replace(translations=t), 16)[1:-1]))
+
+    g = np.asarray(jax.grad(f)(jnp.asarray(t0)))
+    assert np.all(np.isfinite(g)) and np.abs(g).max() > 0
+    eps = 1e-6
+    for idx in [(0, 0), (1, 1), (3, 0), (2, 1)]:
+        tp, tm = t0.copy(), t0.copy()
+        tp[idx] += eps
+        tm[idx] -= eps
+        fd = (float(f(jnp.asarray(tp))) - float(f(jnp.asarray(tm)))) / (2 * eps)
+        assert g[idx] == pytest.approx(fd, rel=1e-5, abs=1e-9)
+
+
+def test_camera_spacing_bad_input():
+    from gijax.candidates import camera_spacing
+
+    with pytest.raises(ValueError, match="at least 2 cameras"):
+        camera_spacing(np.zeros((1, 3)))
+    with pytest.raises(ValueError, match=r"shape \(N, 3\)"):
+        camera_spacing(np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="share a centre"):
+        camera_spacing(np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="needs a rig"):
+        candidates_for("gi-spacing", 16)
+
+
+def test_eval_and_predict_candidate_specs(rigs):
+    from gijax.cli.cmd_eval import choose_candidates
+    from gijax.cli.cmd_predict import resolve_candidates
+    from gijax.nn.presets import get_preset
+
+    mc = get_preset("G16VV-cpu")
+    rig = rigs["paper-test2"]
+    want = {"spacing": gi_candidates(16, 0.5, 100.0, 1.0), "ev": ev_candidates(16),
+            "rig": rig_gi_candidates(rig, 16)}
+    for spec, expected in want.items():
+        np.testing.assert_allclose(choose_candidates(spec, G16, mc, rig), expected, rtol=1e-6)
+        got, label = resolve_candidates(spec, mc, rig, G16)
+        np.testing.assert_allclose(got, expected, rtol=1e-6)
+        assert label
+    np.testing.assert_allclose(choose_candidates("train", G16, mc, rig), G16)

@@ -83,9 +83,9 @@ def test_same_layout_table(smoke):
 def test_new_layout_table(smoke):
     doc = smoke["docs"][("first", "new")]
     keys = [(r["layout"], r["model"], r["eval_candidates"]) for r in doc["rows"]]
-    assert keys == [("paper-test2", "RS-E16", "ev"), ("paper-test2", "G16VV", "train"),
-                    ("paper-test2", "G16VV", "rig"), ("paper-test3", "RS-E16", "ev"),
-                    ("paper-test3", "G16VV", "train"), ("paper-test3", "G16VV", "rig")]
+    assert keys == [(layout, *k) for layout in ("paper-test2", "paper-test3")
+                    for k in (("RS-E16", "ev"), ("G16VV", "train"), ("G16VV", "rig"),
+                              ("G16VV", "spacing"))]
     for r in doc["rows"]:
         _check_metrics(r)
     by = {k: r for k, r in zip(keys, doc["rows"])}
@@ -97,12 +97,22 @@ def test_new_layout_table(smoke):
         assert train.shape == new.shape == (16,)
         assert not np.allclose(train, new)
         assert new[0] == pytest.approx(0.5) and new[-1] == pytest.approx(100.0)
+        # The spacing list is the closed form at the 1 m spacing of both test layouts.
+        np.testing.assert_allclose(by[(layout, "G16VV", "spacing")]["candidates"],
+                                   closed_form_at_1m(), rtol=1e-6)
     assert by[("paper-test3", "G16VV", "train")]["cameras"] == 4
-    assert doc["claims"][0]["claim"].startswith("(b)")
-    assert set(doc["claims"][0]["numbers"]) == {"paper-test2/G16VV", "paper-test3/G16VV"}
+    assert [c["claim"][:3] for c in doc["claims"]] == ["(b)", "(b,", "(c)"]
+    for claim in doc["claims"][:2]:
+        assert set(claim["numbers"]) == {"paper-test2/G16VV", "paper-test3/G16VV"}
     for layout in ("paper-test2", "paper-test3"):
         png = smoke["outs"]["new"].with_name(f"new_{layout}.png")
         assert cv2.imread(str(png)) is not None
+
+
+def closed_form_at_1m():
+    """The paper's closed form at b = 1 m, n = 16, 0.5..100 m, written out in NumPy."""
+    theta = np.linspace(np.arctan(1.0 / 0.5), np.arctan(1.0 / 100.0), 16)
+    return 1.0 / np.tan(theta)
 
 
 @pytest.mark.slow
@@ -228,6 +238,13 @@ def test_claim_b_pairs_and_reductions():
     scoped = C.claim_recomputed_candidates(rows, lambda r: r["model"] != "G16")
     assert scoped["status"] == "PASS" and "beside the paper's scope: G16" in scoped["detail"]
     assert scoped["numbers"]["paper-test2/G16"]["in_scope"] is False
+    # The same check for another recomputed list pairs its own rows with the training list.
+    rows.append({"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
+                 "eval_candidates": "spacing", "mae": 0.015})
+    spacing = C.claim_recomputed_candidates(rows, new="spacing")
+    assert spacing["status"] == "PASS" and spacing["claim"].startswith("(b, closed-form")
+    assert spacing["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(50.0)
+    assert "paper-test3/G16VV" not in spacing["numbers"]      # no spacing row there
 
 
 def test_concat_models_cannot_take_four_cameras():

@@ -18,6 +18,8 @@ kinds:
   ev         evenly spaced in inverse distance
   gi-closed  the paper's closed form for one perpendicular baseline (--baseline, default the
              training spacing 0.3095015413531889 m, which gives the released G16/G8 lists)
+  gi-spacing the closed form with the rig's camera spacing as the baseline (mean distance from
+             each camera to its nearest neighbour; the released lists on paper-train)
 """
 
 
@@ -28,7 +30,7 @@ def register(subparsers) -> None:
                    help="built-in layout name (paper-train, paper-test1, paper-test2, "
                         "paper-test3) or a rig / calibration file (default: paper-train)")
     p.add_argument("-n", "--num", type=int, default=16, help="number of candidates (default 16)")
-    p.add_argument("--kind", choices=("gi", "ev", "gi-closed"), default="gi",
+    p.add_argument("--kind", choices=("gi", "ev", "gi-closed", "gi-spacing"), default="gi",
                    help="candidate kind (default gi, rig-aware)")
     p.add_argument("--d-min", type=float, default=0.5, help="nearest candidate, m (default 0.5)")
     p.add_argument("--d-max", type=float, default=100.0,
@@ -94,6 +96,10 @@ def _run(args) -> int:
     }
     if args.kind == "gi-closed":
         result["baseline"] = 0.3095015413531889 if args.baseline is None else args.baseline
+    if args.kind == "gi-spacing":
+        from gijax.candidates import camera_spacing
+
+        result["baseline"] = float(camera_spacing(rig))
     if args.plot:
         from gijax.viz.candidate_plot import plot_candidates
 

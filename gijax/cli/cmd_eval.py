@@ -28,7 +28,8 @@ def register(subparsers) -> None:
     p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
     p.add_argument("--candidates", default="train",
                    help="'train' (training list), 'rig' (rig-aware GI recomputed for the rig), "
-                        "'ev', or a JSON / text file of distances in metres")
+                        "'spacing' (closed-form GI at the rig's camera spacing), 'ev', or a "
+                        "JSON / text file of distances in metres")
     p.add_argument("--which", default="best", choices=["best", "latest"],
                    help="checkpoint to load: best validated or newest periodic")
     p.add_argument("--method", default="net", choices=METHODS,
@@ -42,17 +43,14 @@ def register(subparsers) -> None:
 
 def choose_candidates(spec: str, train_candidates, model_config, rig) -> np.ndarray:
     """The evaluation candidate list (metres) for ``--candidates``."""
+    from gijax.candidates import RECOMPUTED, recomputed_candidates
+
     n = model_config.num_candidates
     if spec == "train":
         cand = np.asarray(train_candidates, np.float64)
-    elif spec in ("rig", "ev"):
-        from gijax.candidates import candidates_for
-
-        # 'rig' is the rig-aware GI list whatever the training kind: the paper recomputes GI
-        # candidates for a new rig for EV-trained models too (Table II, E16).
-        kind = "ev" if spec == "ev" else "gi"
-        cand = np.asarray(candidates_for(kind, n, rig=rig, d_min=model_config.d_min,
-                                         d_max=model_config.d_max), np.float64)
+    elif spec in RECOMPUTED:
+        cand = np.asarray(recomputed_candidates(spec, n, rig, model_config.d_min,
+                                                model_config.d_max), np.float64)
     else:
         from gijax.cli.cmd_train import read_candidate_file
 

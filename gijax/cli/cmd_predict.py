@@ -22,8 +22,10 @@ preset with random weights (--preset; the outputs are then labelled UNTRAINED).
 
 Candidates: 'train' (default) uses the training list (from the run folder; for a preset, the
 preset's kind in closed form: EV or GI with the paper's baseline); 'rig' recomputes
-geometry-informed candidates for the given rig (same count: no retraining needed); or a file
-with one distance in metres per line, or a JSON list.
+geometry-informed candidates for the given rig (rig-aware: equal mean pixel steps; same count,
+no retraining needed); 'spacing' is the closed-form GI list with the rig's camera spacing as
+the baseline; 'ev' evenly spaced; or a file with one distance in metres per line, or a JSON
+list.
 """
 
 
@@ -51,7 +53,7 @@ def register(subparsers) -> None:
     p.add_argument("--masks", nargs="+", metavar="MASK",
                    help="optional validity masks per camera (non-zero = valid); default: the "
                         "rig's own masks")
-    p.add_argument("--candidates", default="train", metavar="train|rig|FILE",
+    p.add_argument("--candidates", default="train", metavar="train|rig|spacing|ev|FILE",
                    help="distance candidates (see above); default: train")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
@@ -95,11 +97,13 @@ def resolve_candidates(spec: str, config, rig, train_candidates) -> tuple[np.nda
         fn = ev_candidates if config.candidates == "ev" else gi_candidates
         c = fn(n, config.d_min, config.d_max)
         return np.asarray(c, np.float64), f"{config.candidates.upper()} closed form"
-    if spec == "rig":
-        from gijax.candidates.rig_aware import rig_gi_candidates
+    from gijax.candidates import RECOMPUTED, recomputed_candidates
 
-        c = rig_gi_candidates(rig, n, config.d_min, config.d_max)
-        return np.asarray(c, np.float64), "rig-aware GI"
+    if spec in RECOMPUTED:
+        c = recomputed_candidates(spec, n, rig, config.d_min, config.d_max)
+        label = {"rig": "rig-aware GI", "spacing": "GI at the rig's camera spacing",
+                 "ev": "EV"}[spec]
+        return np.asarray(c, np.float64), label
     return read_candidates(spec), f"from {spec}"
 
 
