@@ -23,9 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -34,25 +31,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from experiments.common import git_revision, machine  # noqa: E402
+
 SCALES = {
     # starts x steps of Adam, rendered validation samples, image scale, output panorama height
     "smoke": dict(starts=4, steps=30, samples=1, image_scale=0.125, pano_h=40),
     "cpu": dict(starts=8, steps=150, samples=4, image_scale=0.25, pano_h=80),
 }
-
-
-def _git_revision() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).resolve().parent, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-
-
-def _machine() -> dict:
-    return {"platform": platform.platform(), "python": platform.python_version(),
-            "cpus": os.cpu_count(), "jax": jax.__version__,
-            "devices": [str(d) for d in jax.devices()]}
 
 
 def search_comparison(spec, starts: int, steps: int, seed: int) -> dict:
@@ -254,7 +242,7 @@ def main(argv=None) -> int:
         })
     meta = {"command": " ".join([Path(sys.argv[0]).name] + (argv or sys.argv[1:])),
             "scale": args.scale, "config": cfg, "seed": args.seed, "footprint": args.footprint,
-            "git_revision": _git_revision(), "machine": _machine(),
+            "git_revision": git_revision(), "machine": machine(),
             "durations_s": {k: round(v, 2) for k, v in durations.items()},
             "predictor": predictor}
     payload = {"meta": meta, "search": search_rows, "validation": val,

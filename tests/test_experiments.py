@@ -83,7 +83,7 @@ def test_same_layout_table(smoke):
 def test_new_layout_table(smoke):
     doc = smoke["docs"][("first", "new")]
     keys = [(r["layout"], r["model"], r["eval_candidates"]) for r in doc["rows"]]
-    assert keys == [(layout, *k) for layout in ("paper-test2", "paper-test3")
+    assert keys == [(layout, *k) for layout in ("paper-test2", "paper-test3", "paper-train-1m")
                     for k in (("RS-E16", "ev"), ("G16VV", "train"), ("G16VV", "rig"),
                               ("G16VV", "spacing"))]
     for r in doc["rows"]:
@@ -91,20 +91,31 @@ def test_new_layout_table(smoke):
     by = {k: r for k, r in zip(keys, doc["rows"])}
     # The recomputed list (rig-aware GI for the test rig) differs from the training list and
     # spans the same range.
-    for layout in ("paper-test2", "paper-test3"):
+    for layout in ("paper-test2", "paper-test3", "paper-train-1m"):
         train = np.array(by[(layout, "G16VV", "train")]["candidates"])
         new = np.array(by[(layout, "G16VV", "rig")]["candidates"])
         assert train.shape == new.shape == (16,)
         assert not np.allclose(train, new)
         assert new[0] == pytest.approx(0.5) and new[-1] == pytest.approx(100.0)
-        # The spacing list is the closed form at the 1 m spacing of both test layouts.
+        # The spacing list is the closed form at the 1 m spacing of all three layouts.
         np.testing.assert_allclose(by[(layout, "G16VV", "spacing")]["candidates"],
                                    closed_form_at_1m(), rtol=1e-6)
     assert by[("paper-test3", "G16VV", "train")]["cameras"] == 4
     assert [c["claim"][:3] for c in doc["claims"]] == ["(b)", "(b,", "(c)"]
     for claim in doc["claims"][:2]:
         assert set(claim["numbers"]) == {"paper-test2/G16VV", "paper-test3/G16VV"}
-    for layout in ("paper-test2", "paper-test3"):
+    # Step table: the rig-aware list has equal mean steps by construction, and a wider rig
+    # moves features further per step than the training rig with the same list.
+    steps = {(s["rig"], s["list"]): s for s in doc["candidate_steps"]}
+    assert set(steps) == {("paper-train", "training GI16")} | {
+        (layout, name) for layout in ("paper-test2", "paper-test3", "paper-train-1m")
+        for name in ("training GI16", "rig (16)", "spacing (16)")}
+    for layout in ("paper-test2", "paper-test3", "paper-train-1m"):
+        # The list was solved in float32, the steps are measured in float64.
+        assert steps[(layout, "rig (16)")]["min_max_ratio"] == pytest.approx(1.0, abs=1e-4)
+        assert (steps[(layout, "training GI16")]["mean_px"]
+                > 1.2 * steps[("paper-train", "training GI16")]["mean_px"])
+    for layout in ("paper-test2", "paper-test3", "paper-train-1m"):
         png = smoke["outs"]["new"].with_name(f"new_{layout}.png")
         assert cv2.imread(str(png)) is not None
 
@@ -242,7 +253,7 @@ def test_claim_b_pairs_and_reductions():
     rows.append({"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
                  "eval_candidates": "spacing", "mae": 0.015})
     spacing = C.claim_recomputed_candidates(rows, new="spacing")
-    assert spacing["status"] == "PASS" and spacing["claim"].startswith("(b, closed-form")
+    assert spacing["status"] == "PASS" and spacing["claim"].startswith("(b, spacing)")
     assert spacing["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(50.0)
     assert "paper-test3/G16VV" not in spacing["numbers"]      # no spacing row there
 

@@ -53,9 +53,9 @@ def recomputed_candidates(spec: str, n: int, rig, d_min=0.5, d_max=100.0):
 
 
 __all__ = [
-    "KINDS", "RECOMPUTED", "TRAIN_BASELINE", "DEFAULT_PANO", "RigTerms", "camera_spacing", "candidates_for",
-    "closed_form_steps", "closed_form_uniformity", "cumulative_displacement",
-    "effective_baseline", "ev_candidates", "fit_closed_form_baseline", "gi_candidates", "recomputed_candidates",
-    "rig_gi_candidates", "rig_terms", "solve_equal_steps", "spacing_gi_candidates",
-    "step_uniformity", "summarize_steps",
+    "DEFAULT_PANO", "KINDS", "RECOMPUTED", "TRAIN_BASELINE", "RigTerms", "camera_spacing",
+    "candidates_for", "closed_form_steps", "closed_form_uniformity", "cumulative_displacement",
+    "effective_baseline", "ev_candidates", "fit_closed_form_baseline", "gi_candidates",
+    "recomputed_candidates", "rig_gi_candidates", "rig_terms", "solve_equal_steps",
+    "spacing_gi_candidates", "step_uniformity", "summarize_steps",
 ]

@@ -10,6 +10,9 @@ cylinder (radius 5 cm, 10 cm tall) stands at the layout's centroid and occludes 
   camera 0's centre (the paper's "reference (first) view").
 * ``paper-test2``: 3 cameras on an equilateral triangle of side 1 m; reference at the centroid.
 * ``paper-test3``: 4 cameras on a 1 m square; reference at the centroid.
+* ``paper-train-1m``: the training triangle widened to a 1 m side, reference still at camera 0:
+  a baseline change and nothing else (``paper-test2`` also moves the reference point), the
+  premise of the paper's first figure.
 
 Use :func:`gijax.geometry.rig.scale_rig` for smaller images (the CPU presets use 1/4).
 """
@@ -63,6 +66,11 @@ def _paper_train() -> Rig:
     return layout_rig(p, p[0])
 
 
+def _paper_train_1m() -> Rig:
+    p = _triangle(1.0)
+    return layout_rig(p, p[0])
+
+
 def _paper_test2() -> Rig:
     p = _triangle(1.0)
     return layout_rig(p, p.mean(0))
@@ -78,6 +86,7 @@ BUILTIN_LAYOUTS = {
     "paper-test1": _paper_train,
     "paper-test2": _paper_test2,
     "paper-test3": _paper_test3,
+    "paper-train-1m": _paper_train_1m,
 }
 
 
