@@ -54,6 +54,7 @@ def unsupported(model_config, num_cameras: int) -> Optional[str]:
 
 
 def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tuple[list, dict]:
+    from gijax.baseline.rtss import get_rtss_preset
     from gijax.nn.presets import get_preset
     from gijax.train.config import load_run_config
 
@@ -69,9 +70,9 @@ def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tu
                 work, {"method": preset, "data": layout, "samples": n, "scale": scale.name,
                        "pano": list(scale.pano_hw)},
                 lambda rig, p=preset: C.rtss_predictor(rig, p, scale.pano_hw), data)
-            kind = "ev" if preset.startswith("RS-E") else "gi"
-            rows.append(_row(layout, preset, preset, "classical", "-", kind, res,
-                             num=int(preset[4:])))
+            config = get_rtss_preset(preset)
+            rows.append(_row(layout, preset, preset, "classical", "-", config.candidates, res,
+                             num=config.num_candidates))
             preds[layout][preset] = res["first_prediction"]
         for model, run in runs.items():
             _, mc, _ = load_run_config(Path(run["run"]))

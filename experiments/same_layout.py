@@ -52,6 +52,7 @@ def train_all(scale: C.Scale, work: Path, seed: int, durations: dict) -> dict:
 
 
 def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tuple[list, dict]:
+    from gijax.baseline.rtss import get_rtss_preset
     from gijax.nn.presets import get_preset
 
     t0 = time.perf_counter()
@@ -64,8 +65,9 @@ def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tu
             work, {"method": preset, "data": TEST, "samples": n, "scale": scale.name,
                    "pano": list(scale.pano_hw)},
             lambda rig, p=preset: C.rtss_predictor(rig, p, scale.pano_hw), data)
-        kind = "EV" if preset.startswith("RS-E") else "GI"
-        rows.append(_row(preset, "classical", kind, int(preset[4:]), res))
+        config = get_rtss_preset(preset)
+        rows.append(_row(preset, "classical", config.candidates.upper(), config.num_candidates,
+                         res))
         preds[preset] = res["first_prediction"]
     for model, run in runs.items():
         C.log(f"  evaluating {run['preset']} on {TEST}")

@@ -104,9 +104,14 @@ def inverse_mae(out, truth, mask=None):
 
 # ---------------------------------------------------------------- presets and bad input
 def test_presets_cover_the_four_paper_configurations():
-    expect = {"RS-E16": ("ev", 16), "RS-G16": ("gi", 16), "RS-E32": ("ev", 32),
-              "RS-G32": ("gi", 32)}
-    assert {k: (v.candidates, v.num_candidates) for k, v in RTSS_PRESETS.items()} == expect
+    expect = {"RS-E16": ("ev", 16, "zncc"), "RS-G16": ("gi", 16, "zncc"),
+              "RS-E32": ("ev", 32, "zncc"), "RS-G32": ("gi", 32, "zncc"),
+              "RS-E32-AD": ("ev", 32, "ad")}
+    assert {k: (v.candidates, v.num_candidates, v.cost)
+            for k, v in RTSS_PRESETS.items()} == expect
+    # Apart from the cost, the paper's configuration is RS-E32.
+    assert RTSS_PRESETS["RS-E32-AD"].replace(cost="zncc", cost_window=7,
+                                             name="RS-E32") == RTSS_PRESETS["RS-E32"]
     assert all((v.d_min, v.d_max) == (0.5, 100.0) for v in RTSS_PRESETS.values())
     with pytest.raises(ValueError, match="RS-E16"):
         get_rtss_preset("RS-X8")

@@ -117,10 +117,14 @@ RTSS_PRESETS: dict[str, RTSSConfig] = {
     for name, kind, n in (("RS-E16", "ev", 16), ("RS-G16", "gi", 16), ("RS-E32", "ev", 32),
                           ("RS-G32", "gi", 32))
 }
+# The paper's own configuration: RS-E32 with the original 1x1 absolute-difference cost.
+RTSS_PRESETS["RS-E32-AD"] = RTSS_PRESETS["RS-E32"].replace(name="RS-E32-AD", cost="ad",
+                                                           cost_window=1)
 
 
 def get_rtss_preset(name: str) -> RTSSConfig:
-    """A preset by name (RS-E16, RS-G16, RS-E32, RS-G32)."""
+    """A preset by name (RS-E16, RS-G16, RS-E32, RS-G32; RS-E32-AD = RS-E32 with the paper's
+    1x1 absolute-difference cost)."""
     if name not in RTSS_PRESETS:
         raise ValueError(f"unknown RTSS preset {name!r}; expected one of {sorted(RTSS_PRESETS)}")
     return RTSS_PRESETS[name]

@@ -29,6 +29,6 @@ def register(sub) -> None:
     p.add_argument("--model", default=None,
                    help="a training run folder to use instead of the bundled G16VV-cpu model")
     p.add_argument("--baseline", default="RS-E32",
-                   help="classical baseline configuration: RS-E16, RS-G16, RS-E32, RS-G32")
+                   help="classical baseline configuration: RS-E16, RS-G16, RS-E32, RS-G32, RS-E32-AD")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)

@@ -18,7 +18,8 @@ The model comes from a training run folder or an inference bundle (--ckpt), from
 ONNX file run by onnxruntime (--backend onnx --onnx FILE), or, for trying the pipeline, from a
 preset with random weights (--preset; the outputs are then labelled UNTRAINED).
 --method rtss runs the classical sphere-sweep stereo baseline instead (no model needed;
---rtss-preset picks RS-E16, RS-G16, RS-E32 or RS-G32).
+--rtss-preset picks RS-E16, RS-G16, RS-E32, RS-G32 or RS-E32-AD, the last with the
+paper's 1x1 absolute-difference cost).
 
 Candidates: 'train' (default) uses the training list (from the run folder; for a preset, the
 preset's kind in closed form: EV or GI with the paper's baseline); 'rig' recomputes
