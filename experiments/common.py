@@ -135,11 +135,13 @@ SCALES = {
 # --------------------------------------------------------------------------- provenance
 
 def git_revision() -> str:
-    """``HEAD`` commit, with ``+dirty`` when tracked files differ from it."""
+    """``HEAD`` commit, with ``+dirty`` when tracked files differ from it (the result files
+    these scripts write themselves do not count)."""
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                               cwd=ROOT, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--",
+                                ".", ":!experiments/results", ":!experiments/RESULTS.md"],
                                capture_output=True, text=True, cwd=ROOT, timeout=10).stdout
     except (OSError, subprocess.SubprocessError):
         return "unknown"

@@ -48,6 +48,8 @@ def train_all(scale: C.Scale, work: Path, seed: int, durations: dict) -> dict:
     C.log(f"training {', '.join(scale.models)}")
     runs = {m: C.ensure_trained(work, scale, m, seed) for m in scale.models}
     durations["training"] = time.perf_counter() - t0
+    # A rerun reuses finished trainings; their own durations were recorded when they ran.
+    durations["training_recorded"] = sum(r.get("train_seconds", 0.0) for r in runs.values())
     return runs
 
 

@@ -1,7 +1,8 @@
 """The demo: fresh scenes on the training rig and on a new 4-camera rig, every method, one figure.
 
 For each rig it renders a new scene with exact labels, runs the bundled learned model (with its
-training candidates and with candidates recomputed for the rig) and the classical RTSS baseline,
+training candidates and with the two lists recomputed for the rig: rig-aware GI and the closed
+form at the rig's camera spacing) and the classical RTSS baseline,
 prints MAE / RMSE / SSIM / time, writes one figure (inputs, ground truth, predictions, error
 maps) and a coloured point cloud of the learned prediction on the training rig.
 """
@@ -59,7 +60,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     from tqdm import tqdm
 
     from gijax.baseline.rtss import rtss_predict_sample
-    from gijax.candidates import rig_gi_candidates
+    from gijax.candidates import rig_gi_candidates, spacing_gi_candidates
     from gijax.geometry.layouts import builtin_rig
     from gijax.geometry.panorama import Panorama
     from gijax.geometry.rig import scale_rig
@@ -78,7 +79,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     model, config, train_cand = load_model(model_dir)
     pano = Panorama.hemisphere(*config.output_hw)
 
-    steps = len(rigs) * 4
+    steps = len(rigs) * 5
     bar = tqdm(total=steps, desc="demo", disable=not progress, unit="step")
     table: dict = {}
     panels = []
@@ -90,8 +91,12 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
         sample = render_sample(small, seed + k, pano=pano)
         bar.update(1)
         methods = []
+        # Two ways to recompute the list for the rig (docs/candidates.md); on new layouts the
+        # closed form at the camera spacing restores most (experiments/RESULTS.md).
+        n = config.num_candidates
         cands = {"training candidates": np.asarray(train_cand),
-                 "recomputed candidates": np.asarray(rig_gi_candidates(rig, config.num_candidates))}
+                 "rig-aware GI": np.asarray(rig_gi_candidates(rig, n)),
+                 "GI at camera spacing": np.asarray(spacing_gi_candidates(rig, n))}
         for label, cand in cands.items():
             bar.set_postfix_str(f"{name}: {config.name} ({label})")
             res, secs = _timed(lambda: predict(model, small, sample["images"], sample["masks"],
