@@ -118,16 +118,14 @@ def candidate_steps(rows: list, work: Path) -> list:
         train = f"training {r['train_candidates'].upper()}{n}"
         name = train if r["eval_candidates"] == "train" else f"{r['eval_candidates']} ({n})"
         lists.setdefault((r["layout"], name), r["candidates"])
-        lists.setdefault(("paper-train", train), r["candidates"] if r["eval_candidates"] ==
-                         "train" else None)
+        if r["eval_candidates"] == "train":
+            lists.setdefault(("paper-train", train), r["candidates"])
+    rigs = {layout: DatasetReader(work / "data" / ("train" if layout == "paper-train" else layout),
+                                  verify="none").rig for layout, _ in lists}
     out = []
     with jax.enable_x64(True):
         for (layout, name), cand in sorted(lists.items()):
-            if cand is None:
-                continue
-            rig = DatasetReader(work / "data" / ("train" if layout == "paper-train" else layout),
-                                verify="none").rig
-            u = step_uniformity(rig, np.asarray(cand, np.float64))
+            u = step_uniformity(rigs[layout], np.asarray(cand, np.float64))
             steps = np.asarray(u["steps"], np.float64)
             out.append({"rig": layout, "list": name, "mean_px": float(u["mean"]),
                         "first_px": float(steps[0]), "last_px": float(steps[-1]),
