@@ -47,23 +47,19 @@ def _setup(preset: str, workdir: str):
 
 
 def _jax_runner(model, rig, cand):
-    import jax
     import jax.numpy as jnp
     from flax import nnx
 
     from gijax.export.onnx_export import eval_view, model_rig
-    from gijax.geometry.panorama import Panorama
-    from gijax.sweep.surrogate import surrogate_images
+    from gijax.model import forward, make_grids
 
     cfg = model.config
     run_rig = model_rig(cfg, rig)
-    pano = Panorama.hemisphere(*cfg.surrogate_hw)
     c = jnp.asarray(cand, jnp.float32)
 
     @nnx.jit
     def fwd(view, images, masks):
-        sur, m = jax.vmap(lambda im, mk: surrogate_images(run_rig, im, mk, pano))(images, masks)
-        return view(sur, m, run_rig, c)["inv_distance"]
+        return forward(view, images, masks, make_grids(run_rig, c, cfg))["inv_distance"]
 
     view = eval_view(model)
     return lambda images, masks: np.asarray(fwd(view, images, masks))

@@ -1,22 +1,38 @@
-"""The whole network: surrogate images -> shared features -> sphere sweep -> cost volume ->
-3D U-Net -> soft-argmax in inverse distance.
+"""The whole network: raw fisheye images -> surrogate images -> shared features -> sphere sweep
+-> cost volume -> 3D U-Net -> soft-argmax in inverse distance.
+
+Grids are the boundary between geometry and network. Two pure functions, and nothing else, run
+a model anywhere in gijax (training, the data loader, predict, evaluation, the ONNX export):
+
+* :func:`make_grids` (rig, candidates, config) -> :class:`Grids`: the surrogate-resampling maps
+  (per camera, the fisheye pixel of every surrogate pixel) and the sweep grids (per camera, the
+  feature-map pixel of every (candidate, cell) point and its validity), with the candidates;
+* :func:`forward` (model, images, masks, grids): the network from raw images. It is
+  :func:`gijax.sweep.surrogate.resample_surrogates` (the first stage, which the data loader runs
+  on its own threads) followed by :func:`forward_surrogates` (everything after it).
 
 Shapes for one call (B samples, N cameras, D candidates; paper size in brackets, see
 ``docs/model.md``):
 
-* surrogates (B, N, Hs, Ws, 3) [512 x 2048] and their masks (B, N, Hs, Ws);
+* surrogates (B, N, Hs, Ws, 3) [512 x 2048] and their masks (B, N, Hm, Wm), at the surrogate
+  resolution or any other (the release feeds masks at the feature resolution): mask sweep
+  coordinates are rescaled to the mask's own size;
 * features (B, N, Hs/4, Ws/4, C) [128 x 512 x 16], one extractor shared by all cameras;
-* sweep grids (N, D, h, w, 2) over the rig hemisphere [80 x 320], computed here from the rig and
-  the candidates (nothing precomputed), features and masks sampled there;
+* sweep grids (N, D, h, w, 2) feature-map pixels (col, row) over the rig hemisphere [80 x 320];
+  features and masks are sampled there by ``config.sweep_boundary``;
 * cost volume (B, D, h, w, unet_in) [48 concat / 16 variance], U-Net logits (B, D, h, w);
 * outputs at (H, W) = 2 (h, w) [160 x 640]: inverse distance (1/m), distance (m), probabilities
   (B, D, H, W), entropy (nats) and ``valid``.
 
-The candidates are an argument, not a weight: a list of the same length can replace the training
-list at inference. Variance models accept any number of cameras (at least two).
+A camera counts for a cell when the grid point is valid for it and its sampled mask is > 0 (any
+overlap with the seen region, as in the release). The candidates are data, not weights: a list of
+the same length can replace the training list at inference. Variance models accept any number
+of cameras (at least two).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -27,13 +43,57 @@ from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig
 from gijax.nn import (FeatureExtractor, ModelConfig, get_preset, make_cost_volume, make_unet,
                       regress)
-from gijax.sweep.grid import feature_to_surrogate, sweep_grid
+from gijax.sweep.grid import rescale_pixels, sweep_grid
 from gijax.sweep.sample import sample_sweep
+from gijax.sweep.surrogate import resample_surrogates, surrogate_maps
 
 Array = jax.Array
 
-# A surrogate pixel counts as seen when its resampled mask exceeds this (masks are bilinear).
-MASK_THRESHOLD = 0.5
+# A camera sees a sweep point when its bilinearly sampled mask is above this (the release's
+# rule: any overlap with a seen pixel counts).
+MASK_THRESHOLD = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Grids:
+    """Sampling grids of one rig and candidate list for one model size (a pytree of arrays).
+
+    Attributes:
+      surrogate_px: (N, Hs, Ws, 2) raw-image pixel (u, v) of every surrogate pixel.
+      surrogate_ok: (N, Hs, Ws) bool, the surrogate pixel is inside the lens image.
+      sweep_px: (N, D, h, w, 2) feature-map pixel (col, row) of every (candidate, cell) point.
+      sweep_ok: (N, D, h, w) bool, the point is in front of and seen by that camera's lens.
+      candidates: (D,) ascending distances, metres.
+    """
+
+    surrogate_px: Array
+    surrogate_ok: Array
+    sweep_px: Array
+    sweep_ok: Array
+    candidates: Array
+
+
+jax.tree_util.register_dataclass(
+    Grids, data_fields=["surrogate_px", "surrogate_ok", "sweep_px", "sweep_ok", "candidates"],
+    meta_fields=[])
+
+
+def sweep_grids(rig: Rig, candidates: Array, config: ModelConfig) -> tuple[Array, Array]:
+    """(N, D, h, w, 2) feature-map pixels and (N, D, h, w) validity of the sweep of ``rig`` at
+    ``candidates`` (D,) metres, for ``config``'s feature and cost-volume sizes."""
+    return sweep_grid(rig, candidates, Panorama.hemisphere(*config.cost_hw),
+                      Panorama.hemisphere(*config.feature_hw))
+
+
+def make_grids(rig: Rig, candidates: Array, config: ModelConfig) -> Grids:
+    """Every grid the network needs for ``rig`` (at the model's image size, i.e. intrinsics
+    already scaled by ``config.image_scale``) and ``candidates`` (D,) metres. Pure and
+    traceable: evaluated once for a fixed rig, or inside jit when the rig is an input."""
+    check_candidates(config, candidates)
+    candidates = jnp.asarray(candidates, rig.translations.dtype)
+    sur_px, sur_ok = surrogate_maps(rig, Panorama.hemisphere(*config.surrogate_hw))
+    px, ok = sweep_grids(rig, candidates, config)
+    return Grids(sur_px, sur_ok, px, ok, candidates)
 
 
 def check_candidates(config: ModelConfig, candidates) -> None:
@@ -52,7 +112,7 @@ def check_candidates(config: ModelConfig, candidates) -> None:
         raise ValueError(f"candidates must be strictly ascending distances; found {c}")
 
 
-def check_inputs(config: ModelConfig, surrogates, masks, rig: Rig, candidates) -> None:
+def check_surrogates(config: ModelConfig, surrogates, masks, num_cameras: int) -> None:
     """ValueError naming the argument, expected and found shape for any mismatch."""
     shape = tuple(np.shape(surrogates))
     hs, ws = config.surrogate_hw
@@ -60,8 +120,8 @@ def check_inputs(config: ModelConfig, surrogates, masks, rig: Rig, candidates) -
         raise ValueError(f"surrogates must have shape (batch, cameras, {hs}, {ws}, 3) for model "
                          f"{config.name!r}; found {shape}")
     n = shape[1]
-    if n != rig.num_cameras:
-        raise ValueError(f"the rig has {rig.num_cameras} cameras but {n} surrogate images were "
+    if n != num_cameras:
+        raise ValueError(f"the rig has {num_cameras} cameras but {n} surrogate images were "
                          f"given")
     if config.cost_volume == "concat" and n != config.num_cameras:
         raise ValueError(f"model {config.name!r} concatenates exactly {config.num_cameras} cameras;"
@@ -69,10 +129,82 @@ def check_inputs(config: ModelConfig, surrogates, masks, rig: Rig, candidates) -
     if n < 2:
         raise ValueError(f"stereo needs at least 2 cameras; found {n}")
     mshape = tuple(np.shape(masks))
-    if mshape != shape[:4]:
-        raise ValueError(f"masks must have shape {shape[:4]} (batch, cameras, height, width); "
-                         f"found {mshape}")
-    check_candidates(config, candidates)
+    if len(mshape) != 4 or mshape[:2] != shape[:2]:
+        raise ValueError(f"masks must have shape ({shape[0]}, {shape[1]}, height, width) (batch, "
+                         f"cameras, height, width); found {mshape}")
+
+
+def forward_surrogates(model: "OmniStereoNet", surrogates: Array, masks: Array,
+                       grids: Grids) -> dict:
+    """The network from surrogate images (B, N, Hs, Ws, 3) in [0, 1] and masks (B, N, Hm, Wm).
+
+    Only ``grids.sweep_px``, ``sweep_ok`` and ``candidates`` are read. Returns
+    ``inv_distance`` (B, H, W) 1/m, ``distance`` (B, H, W) m, ``prob`` (B, D, H, W), ``entropy``
+    (B, H, W) nats, ``logits`` (B, D, h, w) (the U-Net output) and ``valid`` (B, H, W) bool: the
+    cell is seen by at least two cameras (variance) or by every camera (concat) at every
+    candidate.
+    """
+    cfg = model.config
+    check_surrogates(cfg, surrogates, masks, grids.sweep_px.shape[0])
+    b, n, hs, ws, _ = surrogates.shape
+    dtype = surrogates.dtype
+    feats = model.features(surrogates.reshape(b * n, hs, ws, 3))
+    feats = feats.reshape(b, n, *feats.shape[1:])                   # (B, N, hf, wf, C)
+    sampled, cam_valid = sweep(feats, masks, grids, cfg.sweep_boundary)
+    volume = model.cost_volume(sampled, cam_valid.astype(dtype))
+    logits = model.unet(volume)
+    out = dict(regress(logits, grids.candidates.astype(dtype), cfg.output_hw))
+    out["logits"] = logits
+    needed = 2 if cfg.cost_volume == "variance" else n
+    # Float reductions: TensorRT reduces float tensors only (no integer / boolean ReduceSum).
+    seen_by = jnp.min(jnp.sum(cam_valid.astype(dtype), axis=1), axis=1)   # (B, h, w)
+    cell_ok = seen_by >= needed
+    fy, fx = cfg.output_hw[0] // cfg.cost_hw[0], cfg.output_hw[1] // cfg.cost_hw[1]
+    out["valid"] = jnp.repeat(jnp.repeat(cell_ok, fy, axis=1), fx, axis=2)
+    return out
+
+
+def _fold_batch(x: Array) -> Array:
+    """(B, N, H, W, C) -> (N, H, W, B C): one gather per camera serves the whole batch."""
+    b, n, h, w, c = x.shape
+    return jnp.transpose(x, (1, 2, 3, 0, 4)).reshape(n, h, w, b * c)
+
+
+def _unfold_batch(x: Array, b: int) -> Array:
+    """(N, ..., B C) -> (B, N, ..., C)."""
+    n, rest, bc = x.shape[0], x.shape[1:-1], x.shape[-1]
+    x = x.reshape(n, *rest, b, bc // b)
+    return jnp.moveaxis(x, -2, 0)
+
+
+def sweep(features: Array, masks: Array, grids: Grids, boundary: str) -> tuple[Array, Array]:
+    """Per-camera features (B, N, hf, wf, C) and masks (B, N, Hm, Wm) sampled at the sweep grid:
+    (B, N, D, h, w, C) and per-camera validity (B, N, D, h, w) bool (grid point valid and
+    sampled mask > :data:`MASK_THRESHOLD`)."""
+    b = features.shape[0]
+    dtype = features.dtype
+    coords = grids.sweep_px.astype(dtype)
+    swept = _unfold_batch(sample_sweep(_fold_batch(features), coords, boundary), b)
+    # The same directions in the mask's own pixels (as normalised grid_sample coordinates do).
+    mask_coords = rescale_pixels(coords, features.shape[2:4], masks.shape[2:4])
+    swept_mask = sample_sweep(jnp.moveaxis(masks.astype(dtype), 0, -1), mask_coords, boundary)
+    swept_mask = jnp.moveaxis(swept_mask, -1, 0)                     # (B, N, D, h, w)
+    return swept, grids.sweep_ok[None] & (swept_mask > MASK_THRESHOLD)
+
+
+def forward(model: "OmniStereoNet", images: Array, masks: Array, grids: Grids) -> dict:
+    """The network from raw fisheye images (B, N, h, w, 3) float RGB in [0, 1] and masks
+    (B, N, h, w) (1 = the pixel sees the world) at the model's image size; see
+    :func:`forward_surrogates` for the outputs. The model must be in the mode wanted (eval for
+    inference)."""
+    b = images.shape[0]
+    dtype = images.dtype
+    # Colours and mask of all samples in one gather per camera.
+    stacked = _fold_batch(jnp.concatenate([images, masks[..., None].astype(dtype)], axis=-1))
+    sampled, _ = resample_surrogates(grids.surrogate_px.astype(dtype), grids.surrogate_ok, stacked)
+    sampled = _unfold_batch(sampled, b)                              # (B, N, Hs, Ws, 4)
+    # Channel 3 is the resampled mask, already 0 outside the lens.
+    return forward_surrogates(model, sampled[..., :3], sampled[..., 3], grids)
 
 
 class OmniStereoNet(nnx.Module):
@@ -84,47 +216,18 @@ class OmniStereoNet(nnx.Module):
         self.cost_volume = make_cost_volume(config, rngs)
         self.unet = make_unet(config, rngs)
 
-    def sweep(self, features: Array, masks: Array, rig: Rig,
-              candidates: Array) -> tuple[Array, Array]:
-        """Per-camera features (B, N, hf, wf, C) and surrogate masks (B, N, Hs, Ws) sampled at
-        the sweep grid: (B, N, D, h, w, C) and per-camera validity (B, N, D, h, w) bool."""
-        cfg = self.config
-        feature_pano = Panorama.hemisphere(*features.shape[2:4])
-        surrogate_pano = Panorama.hemisphere(*masks.shape[2:4])
-        coords, grid_ok = sweep_grid(rig, candidates, Panorama.hemisphere(*cfg.cost_hw),
-                                     feature_pano)
-        coords = coords.astype(features.dtype)
-        mask_coords = feature_to_surrogate(coords, feature_pano, surrogate_pano)
-
-        def one(feat, mask):
-            sampled, ok = sample_sweep(feat, coords, grid_ok)
-            m, _ = sample_sweep(mask[..., None].astype(feat.dtype), mask_coords, grid_ok)
-            return sampled, ok & (m[..., 0] > MASK_THRESHOLD)
-
-        return jax.vmap(one)(features, masks)
-
     def __call__(self, surrogates: Array, masks: Array, rig: Rig, candidates: Array) -> dict:
-        """surrogates (B, N, Hs, Ws, 3) in [0, 1], masks (B, N, Hs, Ws), candidates (D,) metres.
-
-        Returns ``inv_distance`` (B, H, W) 1/m, ``distance`` (B, H, W) m, ``prob`` (B, D, H, W),
-        ``entropy`` (B, H, W) and ``valid`` (B, H, W) bool: the cell is seen by at least two
-        cameras (variance) or by every camera (concat) at every candidate.
-        """
-        cfg = self.config
-        check_inputs(cfg, surrogates, masks, rig, candidates)
-        b, n, hs, ws, _ = surrogates.shape
+        """surrogates (B, N, Hs, Ws, 3) in [0, 1], masks (B, N, Hm, Wm), candidates (D,) metres:
+        :func:`forward_surrogates` with the sweep grids of ``rig`` computed here."""
+        check_candidates(self.config, candidates)
+        found = tuple(np.shape(surrogates))[1:2]
+        if found != (rig.num_cameras,):
+            raise ValueError(f"the rig has {rig.num_cameras} cameras but "
+                             f"{found[0] if found else 'no'} surrogate images were given")
         candidates = jnp.asarray(candidates, surrogates.dtype)
-        feats = self.features(surrogates.reshape(b * n, hs, ws, 3))
-        feats = feats.reshape(b, n, *feats.shape[1:])
-        sampled, cam_valid = self.sweep(feats, masks, rig, candidates)
-        volume = self.cost_volume(sampled, cam_valid.astype(sampled.dtype))
-        logits = self.unet(volume)
-        out = dict(regress(logits, candidates, cfg.output_hw))
-        needed = 2 if cfg.cost_volume == "variance" else n
-        cell_ok = jnp.all(jnp.sum(cam_valid, axis=1) >= needed, axis=1)  # (B, h, w)
-        fy, fx = cfg.output_hw[0] // cfg.cost_hw[0], cfg.output_hw[1] // cfg.cost_hw[1]
-        out["valid"] = jnp.repeat(jnp.repeat(cell_ok, fy, axis=1), fx, axis=2)
-        return out
+        px, ok = sweep_grids(rig, candidates, self.config)
+        grids = Grids(None, None, px, ok, candidates)
+        return forward_surrogates(self, surrogates, masks, grids)
 
 
 # Flax's default initialisers by variable name: conv / linear kernels are LeCun-normal

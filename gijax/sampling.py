@@ -50,3 +50,35 @@ def bilinear_sample(image: Array, coords: Array, valid: Array | None = None) -> 
     bottom = take(j1, i0) * (1 - fu) + take(j1, i1) * fu
     out = top * (1 - fv) + bottom * fv
     return jnp.where(inside[..., None], out, 0.0), inside
+
+
+def bilinear_sample_zero_padded(image: Array, coords: Array) -> Array:
+    """Sample ``image`` (H, W, C) at ``coords`` (..., 2) = (u, v) with zero padding -> (..., C).
+
+    Each of the four neighbours that lies outside the image contributes 0 (its weight is kept,
+    its value is 0), so a sample half a pixel outside the last column is half the edge value
+    and one at least a pixel outside is 0. These are the semantics of PyTorch's
+    ``grid_sample(..., padding_mode='zeros')`` and of torchvision's ``deform_conv2d``, which the
+    released network samples its sweep and its spherical taps with; integer (u, v) are pixel
+    centres, as everywhere in gijax.
+    """
+    h, w = image.shape[0], image.shape[1]
+    u = coords[..., 0]
+    v = coords[..., 1]
+    u0 = jnp.floor(u)
+    v0 = jnp.floor(v)
+    fu = u - u0
+    fv = v - v0
+    u0 = u0.astype(jnp.int32)
+    v0 = v0.astype(jnp.int32)
+    flat = image.reshape(h * w, -1)
+
+    def corner(j, i, weight):
+        inside = (i >= 0) & (i <= w - 1) & (j >= 0) & (j <= h - 1)
+        # Indices are clamped before the gather (same graph under XLA, onnxruntime, TensorRT);
+        # the weight of an outside neighbour is zeroed instead.
+        idx = jnp.clip(j, 0, h - 1) * w + jnp.clip(i, 0, w - 1)
+        return jnp.take(flat, idx, axis=0) * jnp.where(inside, weight, 0.0)[..., None]
+
+    return (corner(v0, u0, (1 - fu) * (1 - fv)) + corner(v0, u0 + 1, fu * (1 - fv))
+            + corner(v0 + 1, u0, (1 - fu) * fv) + corner(v0 + 1, u0 + 1, fu * fv))

@@ -53,15 +53,15 @@ def test_batch_shapes_and_values(reader):
     assert b["images"].shape == (2, 3, 8, 32, 3) and b["images"].dtype == np.float32
     assert b["masks"].shape == (2, 3, 8, 32) and b["masks"].dtype == np.float32
     assert b["distance"].shape == (2, 8, 32) and b["valid"].dtype == np.bool_
-    assert set(np.unique(b["masks"])) <= {0.0, 1.0}
+    # Resampled masks are fractional at mask edges (the forward thresholds them after the sweep).
+    assert 0.0 <= b["masks"].min() and b["masks"].max() <= 1.0
+    assert np.mean((b["masks"] > 0) & (b["masks"] < 1)) > 0
     assert 0.0 <= b["images"].min() and b["images"].max() <= 1.0
-    np.testing.assert_array_equal(b["images"] * (1 - b["masks"][..., None]), 0.0)
     # The loader's precomputed grids give what surrogate_images computes from scratch.
     s0 = reader[0]
     ref_i, ref_m = surrogate_images(reader.rig, s0["images"], s0["masks"], SURROGATE)
-    agree = (np.asarray(ref_m) > 0.5) == (b["masks"][0] > 0)
-    assert agree.mean() > 0.995
-    np.testing.assert_allclose(b["images"][0][agree], np.asarray(ref_i)[agree], atol=1e-4)
+    np.testing.assert_allclose(b["masks"][0], np.asarray(ref_m), atol=1e-5)
+    np.testing.assert_allclose(b["images"][0], np.asarray(ref_i), atol=1e-4)
     # Sample 0 is a flat colour: every valid surrogate pixel has exactly that colour.
     m = b["masks"][0] > 0
     assert m.mean() > 0.3

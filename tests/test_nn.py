@@ -52,7 +52,7 @@ def _hand_count(cin_unet: int, f: int, cost_in: int, c: int = 16, blocks=(5, 10)
     k2, k3 = 9, 27
     bn = lambda ch: 2 * ch  # noqa: E731
     res2 = 2 * (k2 * c * c + bn(c))
-    features = 25 * 3 * c + bn(c) + blocks[0] * res2 + k2 * c * c + blocks[1] * res2 \
+    features = 25 * 3 * c + bn(c) + blocks[0] * res2 + k2 * c * c + bn(c) + blocks[1] * res2 \
         + k2 * c * c + bn(c)
     cost = k3 * cost_in * cin_unet + bn(cin_unet)
     res3 = lambda ch: 2 * (k3 * ch * ch + bn(ch))  # noqa: E731
@@ -80,6 +80,9 @@ def test_paper_parameter_counts_match_reference(paper_counts):
     assert paper_counts["G16"] == _hand_count(48, 96, 48)
     assert paper_counts["G16V-released"] == _hand_count(16, 32, 16)
     assert paper_counts["G16VV"] == _hand_count(16, 96, 16)
+    # The released G16V's own count (its state dict's trainable entries, as the release's
+    # parity fixtures record it).
+    assert paper_counts["G16V-released"] == 4_150_977
 
 
 def test_cpu_presets_keep_structure_and_validate():
@@ -351,6 +354,60 @@ def test_spherical_gather_equals_plain_conv_on_an_integer_grid():
     ref = jax.lax.conv_general_dilated(jnp.asarray(padded), jnp.asarray(kernel), (1, 1),
                                        "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
     np.testing.assert_allclose(got, np.asarray(ref), rtol=1e-4, atol=1e-4)
+
+
+def _np_zero_padded_bilinear(img, row, col):
+    """Reference bilinear sample of (H, W, C) at one (row, col), neighbours outside = 0."""
+    h, w = img.shape[:2]
+    r0, c0 = math.floor(row), math.floor(col)
+    out = np.zeros(img.shape[-1])
+    for r, c, wgt in ((r0, c0, (1 - (row - r0)) * (1 - (col - c0))),
+                      (r0, c0 + 1, (1 - (row - r0)) * (col - c0)),
+                      (r0 + 1, c0, (row - r0) * (1 - (col - c0))),
+                      (r0 + 1, c0 + 1, (row - r0) * (col - c0))):
+        if 0 <= r < h and 0 <= c < w:
+            out += wgt * img[r, c]
+    return out
+
+
+def test_release_taps_sample_where_deform_conv_does():
+    """The 'release' taps: tap (i, j) of pixel (y, x) reads (y - 1 + i + dy, x - 1 + j + dx)
+    with the release's offsets, bilinear with zero padding (torchvision deform_conv2d)."""
+    from gijax.nn.spherical import _cached_tables, release_offsets
+
+    rng = np.random.default_rng(4)
+    h, w, c = 6, 16, 2
+    x = rng.normal(size=(1, h, w, c)).astype(np.float32)
+    index, weight = _cached_tables("release", h, w, -math.pi / 2, 0.0)
+    got = np.asarray(gather_taps(jnp.asarray(x), jnp.asarray(index), jnp.asarray(weight)))[0]
+    off = release_offsets(h, w)
+    for y, xx in [(0, 0), (2, 7), (5, 15), (3, 0)]:
+        for k in range(9):
+            i, j = divmod(k, 3)
+            ref = _np_zero_padded_bilinear(x[0], y - 1 + i + off[y, xx, k, 0],
+                                           xx - 1 + j + off[y, xx, k, 1])
+            np.testing.assert_allclose(got[y, xx, k], ref, atol=1e-5)
+    # Not the tangent kernel: at mid latitudes the side taps land about twice as far out.
+    tangent = tangent_offsets(h, w)
+    mid = h // 2
+    release_side = -1 + 2 + off[mid, w // 2, 5, 1]
+    assert 1.6 < release_side / tangent[mid, 5, 1] < 2.6
+
+
+def test_spherical_taps_are_a_config_choice():
+    cfg = dataclasses.replace(get_preset("G16VV-cpu"), surrogate_hw=(32, 128), cost_hw=(8, 16),
+                              output_hw=(16, 32))
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(1, 32, 128, 3)), jnp.float32)
+    outs = {}
+    for taps in ("release", "tangent"):
+        model = FeatureExtractor(dataclasses.replace(cfg, spherical_taps=taps), nnx.Rngs(0))
+        model.eval()
+        outs[taps] = np.asarray(model(x))
+    assert np.abs(outs["release"] - outs["tangent"]).max() > 1e-3
+    with pytest.raises(ValueError, match="spherical_taps"):
+        dataclasses.replace(cfg, spherical_taps="gnomonic")
+    with pytest.raises(ValueError, match="sweep_boundary"):
+        dataclasses.replace(cfg, sweep_boundary="clamp")
 
 
 # ----------------------------------------------------------------------------- whole parts

@@ -22,7 +22,7 @@ G16 = np.array([0.5, 0.5436655530390901, 0.5933598538089077, 0.6505899686755604,
                 2.7192485658566654, 4.033339718346582, 7.764432455310304, 100.0])
 
 sweep_jit = jax.jit(sweep_grid, static_argnums=(2, 3))
-sample_jit = jax.jit(sample_sweep)
+sample_jit = jax.jit(sample_sweep, static_argnums=2)
 
 DS = dict(fx=25.0, fy=25.0, cx=63.5, cy=63.5, xi=-0.2, alpha=0.59)
 DS_FOV = 190.0
@@ -134,11 +134,17 @@ def test_sweep_grid_reaches_the_seam():
     assert seam.sum() > 0
     ramp = np.cos(np.linspace(0, 2 * np.pi, 64, endpoint=False) + np.pi / 64)
     maps = jnp.broadcast_to(jnp.asarray(ramp, jnp.float32)[None, :, None], (3, 16, 64, 1))
-    out, ok = sample_jit(maps, coords, valid)
+    out = sample_jit(maps, coords, "wrap")
     lon = -np.pi + 2 * np.pi * (col + 0.5) / 64
     # cos is smooth across the seam: linear interpolation error stays below (2 pi / 64)^2 / 8.
     err = np.abs(np.asarray(out)[..., 0] - np.cos(lon + np.pi))[seam]
-    assert err.max() < 0.0013 and np.asarray(ok)[seam].all()
+    assert err.max() < 0.0013
+    # The release's zero padding instead fades the map towards 0 past the last column's centre:
+    # the sample is the edge column weighted by its distance to the seam.
+    faded = np.asarray(sample_jit(maps, coords, "zeros"))[..., 0]
+    past_last = seam & (col > 63.0)
+    expected = ramp[63] * (64.0 - col)
+    np.testing.assert_allclose(faded[past_last], expected[past_last], atol=1e-5)
 
 
 def test_feature_to_surrogate_pixel_relation():
@@ -175,11 +181,12 @@ def test_surrogate_matches_opencv_remap():
     # OpenCV quantises bilinear weights to 1/32; the images vary by < 0.2 per pixel.
     np.testing.assert_allclose(sur[0], want, atol=1e-2)
     assert np.all(smask[0] > 0.99)  # the 195 deg lens sees the whole hemisphere
-    # The left half of camera 1's image is masked out: its surrogate is 0 there, kept elsewhere.
+    # The left half of camera 1's image is masked out: its resampled mask is 0 there and 1 on
+    # the right; its colours are kept everywhere (the release does not zero them under the mask).
     left = maps[..., 0] < c - 2
     right = maps[..., 0] > c + 2
-    assert np.all(sur[1][left] == 0) and np.all(smask[1][left] < 0.5)
-    np.testing.assert_allclose(sur[1][right], want[right], atol=1e-2)
+    assert np.all(smask[1][left] == 0) and np.all(smask[1][right] > 0.99)
+    np.testing.assert_allclose(sur[1], want, atol=1e-2)
 
 
 def test_surrogate_accepts_uint8_and_rejects_bad_shapes():
@@ -240,9 +247,9 @@ def test_colour_variance_is_minimal_at_the_true_distance():
     sur_pano, cost = Panorama.hemisphere(64, 256), Panorama.hemisphere(32, 128)
     sur, smask = surrogate_images(rig, jnp.asarray(images), None, sur_pano)
     coords, valid = sweep_jit(rig, jnp.asarray(G16, jnp.float32), cost, sur_pano)
-    colour, ok = sample_jit(sur, coords, valid)
-    m, _ = sample_jit(smask[..., None], coords, valid)
-    ok = np.asarray(ok & (m[..., 0] > 0.5))
+    colour = sample_jit(sur, coords, "wrap")
+    m = sample_jit(smask[..., None], coords, "wrap")
+    ok = np.asarray(valid & (m[..., 0] > 0.5))
     colour = np.asarray(colour, np.float64)
     count = ok.sum(0)
     mean = (colour * ok[..., None]).sum(0) / np.maximum(count, 1)[..., None]

@@ -140,14 +140,19 @@ def forward(ctx: Context) -> dict:
     return {"rows": rows}
 
 
+def _sweep(cfg, feats, masks, rig, cand):
+    """The sweep stage as the forward runs it: grids from the rig, then sampling."""
+    from gijax.model import Grids, sweep, sweep_grids
+
+    px, ok = sweep_grids(rig, cand, cfg)
+    return sweep(feats, masks, Grids(None, None, px, ok, cand), cfg.sweep_boundary)
+
+
 def sweep(ctx: Context) -> dict:
     """The sphere sweep alone (grids from the rig + sampling of features and masks), with its
     memory traffic against the measured bandwidth."""
-    from gijax.model import create_model
-
     cfg = get_preset(ctx.settings.sweep_preset)
     rig = network_rig(builtin_rig("paper-train"), cfg)
-    model = create_model(cfg, seed=0)
     n = rig.num_cameras
     hf, wf = cfg.feature_hw
     rng = np.random.default_rng(0)
@@ -155,7 +160,7 @@ def sweep(ctx: Context) -> dict:
     _, masks, cand = network_inputs(cfg, n)
 
     def run(feats, masks, rig, cand):
-        return model.sweep(feats, masks, rig, cand)
+        return _sweep(cfg, feats, masks, rig, cand)
 
     ctx.log(f"sweep {cfg.name} ...")
     row, compiled, _ = _measure_program(ctx, lambda: (compile_fn(run, feats, masks, rig, cand),
@@ -194,7 +199,7 @@ def stages(ctx: Context) -> dict:
         return feats.reshape(b, n, *feats.shape[1:])
 
     def sweep_stage(state, feats):
-        return nnx.merge(graphdef, state).sweep(feats, masks, rig, cand)
+        return _sweep(cfg, feats, masks, rig, cand)
 
     def cost_volume(state, sampled, valid):
         return nnx.merge(graphdef, state).cost_volume(sampled, valid.astype(sampled.dtype))

@@ -44,10 +44,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from gijax.export.graph import (forward_from_grids, inference_grids, intrinsics_layout,
-                                rig_arrays, rig_from_arrays)
+from gijax.export.graph import intrinsics_layout, rig_arrays, rig_from_arrays
 from gijax.geometry.rig import Rig, scale_rig
-from gijax.model import OmniStereoNet, check_candidates
+from gijax.model import OmniStereoNet, check_candidates, forward, make_grids
 from gijax.nn.layers import conv3d_mode
 
 IMAGES, MASKS = "images", "masks"
@@ -104,7 +103,13 @@ def _input_specs(cfg, rig: Rig, batch, rig_as_input: bool):
     return specs
 
 
-_grids_jit = jax.jit(inference_grids, static_argnums=2)
+_grids_jit = jax.jit(make_grids, static_argnums=2)
+
+
+def _outputs(out: dict) -> tuple:
+    # Validity leaves as float32: TensorRT 8.x has no boolean network outputs.
+    out = dict(out, valid=out["valid"].astype(jnp.float32))
+    return tuple(out[k] for k in OUTPUTS)
 
 
 def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: bool):
@@ -118,17 +123,14 @@ def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: boo
                                        _grids_jit(rig, cand, cfg))
 
         def fn(images, masks):
-            out = forward_from_grids(model, images, masks, grids, cand)
-            return tuple(out[k] for k in OUTPUTS)
+            return _outputs(forward(model, images, masks, grids))
 
         return fn
     intrinsics_layout(rig)  # one camera model and size, or a clear error
 
     def fn(images, masks, intrinsics, rotations, translations, reference, cand):
         run_rig = rig_from_arrays(rig, intrinsics, rotations, translations, reference)
-        grids = inference_grids(run_rig, cand, cfg)
-        out = forward_from_grids(model, images, masks, grids, cand)
-        return tuple(out[k] for k in OUTPUTS)
+        return _outputs(forward(model, images, masks, make_grids(run_rig, cand, cfg)))
 
     return fn
 
@@ -310,25 +312,19 @@ def legalise(proto) -> None:
 # ----------------------------------------------------------------------------- validation
 
 def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> dict:
-    """The same outputs by the JAX model's own path (surrogate_images + OmniStereoNet), for
-    parity checks. ``images`` (B, N, h, w, 3) float in [0, 1] at the model's image size, masks
+    """The same outputs computed by JAX (:func:`gijax.model.forward`, jitted), for parity
+    checks. ``images`` (B, N, h, w, 3) float in [0, 1] at the model's image size, masks
     (B, N, h, w); ``rig`` at its calibrated size."""
-    from gijax.geometry.panorama import Panorama
-    from gijax.sweep.surrogate import surrogate_images
-
     cfg = model.config
     run_rig = model_rig(cfg, rig)
-    view = eval_view(model)
-    pano = Panorama.hemisphere(*cfg.surrogate_hw)
-    images = jnp.asarray(images, jnp.float32)
-    masks = jnp.asarray(masks, jnp.float32)
-    sur, sur_m = jax.vmap(lambda im, m: surrogate_images(run_rig, im, m, pano))(images, masks)
+    cand = jnp.asarray(candidates, jnp.float32)
 
     @nnx.jit
-    def run(v, s, m, c):
-        return v(s, m, run_rig, c)
+    def run(v, im, m, c):
+        return forward(v, im, m, make_grids(run_rig, c, cfg))
 
-    out = run(view, sur, sur_m, jnp.asarray(candidates, jnp.float32))
+    out = run(eval_view(model), jnp.asarray(images, jnp.float32), jnp.asarray(masks, jnp.float32),
+              cand)
     return {"inv_distance": np.asarray(out["inv_distance"]),
             "distance": np.asarray(out["distance"]),
             "entropy": np.asarray(out["entropy"]),

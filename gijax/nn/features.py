@@ -8,13 +8,14 @@ layer                                          output (per image)     parameters
 input surrogate, RGB in [0, 1]                 Hs x Ws x 3
 5x5 conv stride 2 (3 -> C) + BN + LeakyReLU    Hs/2 x Ws/2 x C        1200 + 32
 n1 residual blocks (two 3x3 conv + BN each)    Hs/2 x Ws/2 x C        n1 x 2 x (2304 + 32)
-3x3 conv stride 2 (C -> C), no norm            Hs/4 x Ws/4 x C        2304
+3x3 conv stride 2 (C -> C) + BN + LeakyReLU   Hs/4 x Ws/4 x C        2304 + 32
 n2 residual blocks                             Hs/4 x Ws/4 x C        n2 x 2 x (2304 + 32)
 3x3 conv + BN + LeakyReLU (or spherical conv)  Hs/4 x Ws/4 x C        2304 + 32
 =============================================  =====================  ==========================
 
-At paper size (512 x 2048 in, (5, 10) blocks) this gives 128 x 512 x 16 features and 75 952
+At paper size (512 x 2048 in, (5, 10) blocks) this gives 128 x 512 x 16 features and 75 984
 parameters; the spherical variant has the same count (its 3x3 taps are resampled, not added).
+Parameter names follow the layers above; :mod:`gijax.nn.release_weights` maps the release's.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from __future__ import annotations
 import jax
 from flax import nnx
 
-from gijax.nn.layers import ConvBN, ResidualBlock, conv
+from gijax.nn.layers import ConvBN, ResidualBlock
 from gijax.nn.presets import ModelConfig
 from gijax.nn.spherical import SphericalConv
 
@@ -43,10 +44,11 @@ class FeatureExtractor(nnx.Module):
         self.stem = ConvBN(3, c, 5, 2, rngs, stride=2)
         n1, n2 = config.feature_blocks
         self.blocks1 = nnx.List([ResidualBlock(c, 2, rngs) for _ in range(n1)])
-        self.down = conv(c, c, 3, 2, 2, rngs)
+        self.down = ConvBN(c, c, 3, 2, rngs, stride=2)
         self.blocks2 = nnx.List([ResidualBlock(c, 2, rngs) for _ in range(n2)])
         if self.spherical:
-            self.last = SphericalConv(c, c, *config.feature_hw, rngs=rngs)
+            self.last = SphericalConv(c, c, *config.feature_hw, rngs=rngs,
+                                      taps=config.spherical_taps)
         else:
             self.last = ConvBN(c, c, 3, 2, rngs)
 

@@ -27,6 +27,8 @@ _CANDIDATE_KINDS = ("ev", "gi")
 _LOSSES = ("smooth_l1", "volume")
 _FEATURES = ("plain", "spherical")
 _COST_VOLUMES = ("concat", "variance")
+_SPHERICAL_TAPS = ("release", "tangent")
+_SWEEP_BOUNDARIES = ("zeros", "wrap")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,6 +42,15 @@ class ModelConfig:
     intrinsics before resampling (1.0 at paper size). Distances ``d_min``/``d_max`` are metres.
     ``unet_in`` is the number of channels of the cost volume, which the U-Net consumes: the
     camera count times ``feature_channels`` for concat, ``feature_channels`` for variance.
+
+    Two choices keep the release's behaviour by default and offer gijax's alternative:
+
+    * ``spherical_taps`` (spherical features only): ``'release'``, the taps the released G16VV
+      was trained with, or ``'tangent'``, the tangent-plane kernel the paper describes (see
+      :mod:`gijax.nn.spherical`);
+    * ``sweep_boundary``: how the sweep samples feature maps and masks near their edges:
+      ``'zeros'``, the release's ``grid_sample`` zero padding, or ``'wrap'``, longitude wrapping
+      across the seam (see :mod:`gijax.sweep.sample`).
     """
 
     name: str
@@ -60,6 +71,8 @@ class ModelConfig:
     mask_augmentation: bool = False
     d_min: float = 0.5
     d_max: float = 100.0
+    spherical_taps: str = "release"
+    sweep_boundary: str = "zeros"
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -72,6 +85,8 @@ class ModelConfig:
             ("loss", _LOSSES),
             ("features", _FEATURES),
             ("cost_volume", _COST_VOLUMES),
+            ("spherical_taps", _SPHERICAL_TAPS),
+            ("sweep_boundary", _SWEEP_BOUNDARIES),
         ):
             if getattr(self, field) not in allowed:
                 fail(field, f"one of {allowed}", getattr(self, field))

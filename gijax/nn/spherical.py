@@ -1,5 +1,15 @@
 """Spherical 3x3 convolution on an equirectangular feature map (fixed tangent-plane offsets).
 
+Two tap layouts (``taps``), chosen by ``ModelConfig.spherical_taps``:
+
+* ``'release'`` (the released G16VV, and the default): the offsets the authors' code computes
+  and feeds to torchvision's ``deform_conv2d`` (:func:`release_offsets`). ``deform_conv2d`` adds
+  them to its own 3x3 kernel grid, but they already hold each tap's full displacement from the
+  pixel, so the taps land about twice the tangent-plane spacing apart, shifted by +0.5 px, and
+  longitude is wrapped with ``% (W - 1)``. Sampling is bilinear with zero padding, as in
+  ``deform_conv2d``. Released G16VV weights were trained with these taps and need them.
+* ``'tangent'``: the kernel the paper describes, derived below.
+
 An equirectangular map stretches the sphere in longitude by 1 / cos(lat): near the pole a plain
 3x3 kernel covers a sliver of solid angle. The spherical conv instead samples its 9 taps where a
 3x3 grid laid on the plane tangent to the sphere at the output pixel lands, so the kernel covers
@@ -132,8 +142,80 @@ def gather_taps(x: Array, index: Array, weight: Array) -> Array:
     return out
 
 
+def release_offsets(height: int, width: int, lat_min: float = -math.pi / 2,
+                    lat_max: float = 0.0) -> np.ndarray:
+    """(H, W, 9, 2) float64 offsets (dy, dx) in pixels, exactly as the release computes them.
+
+    Tap k = 3 (i + 1) + (j + 1). ``deform_conv2d`` samples tap (i, j) of output pixel (y, x) at
+    ``(y + i + dy, x + j + dx)``; see :func:`release_positions`. The release's construction:
+    a gnomonic kernel with ``kx = tan(j dlon)``, ``ky = tan(i dlat) / cos(i dlon)`` mapped to
+    latitude / longitude around each pixel centre, converted to pixels on a map spanning
+    longitudes [0, 2 pi), wrapped with ``% (W - 1)`` and then ``% W``, and stored minus the
+    pixel's own index (not minus the tap's kernel position).
+    """
+    lat_span = lat_max - lat_min
+    lat_mid = lat_min + lat_span / 2
+    lon_span, lon_mid = 2 * math.pi, math.pi
+    dlat, dlon = lat_span / height, lon_span / width
+    steps = np.array([-1.0, 0.0, 1.0])
+    kx = np.tan(steps * dlon)
+    ky = np.tan(steps * dlat) / np.cos(steps * dlon)
+    ky, kx = np.meshgrid(ky, kx, indexing="ij")                      # (3, 3): [i, j]
+    rho = np.sqrt(kx**2 + ky**2)
+    rho[1, 1] = 1e-8  # the centre tap: the release's guard against 0 / 0
+    nu = np.arctan(rho)
+    lat_c = ((np.arange(height) + 0.5) / height - 0.5) * lat_span + lat_mid   # (H,)
+    lon_c = ((np.arange(width) + 0.5) / width - 0.5) * lon_span + lon_mid     # (W,)
+    sl, cl = np.sin(lat_c)[:, None, None], np.cos(lat_c)[:, None, None]
+    lat = np.arcsin(np.cos(nu) * sl + ky * np.sin(nu) * cl / rho)             # (H, 3, 3)
+    dlon_tap = np.arctan2(kx * np.sin(nu), rho * cl * np.cos(nu) - ky * sl * np.sin(nu))
+    lon = dlon_tap[:, None] + lon_c[None, :, None, None]                       # (H, W, 3, 3)
+    row = ((lat - lat_mid) / lat_span + 0.5) * height
+    col = ((lon - lon_mid) / lon_span + 0.5) * width
+    col = np.mod(np.mod(col, width - 1), width)
+    dy = np.broadcast_to(row[:, None], col.shape) - np.arange(height)[:, None, None, None]
+    dx = col - np.arange(width)[None, :, None, None]
+    return np.stack([dy, dx], axis=-1).reshape(height, width, 9, 2)
+
+
+def release_positions(offsets: np.ndarray) -> np.ndarray:
+    """(H, W, 9, 2) (row, col) where ``deform_conv2d`` (3x3, stride 1, padding 1) samples each
+    tap, from offsets (H, W, 9, 2) (dy, dx): ``(y - 1 + i + dy, x - 1 + j + dx)``."""
+    height, width = offsets.shape[:2]
+    i, j = np.meshgrid([0.0, 1.0, 2.0], [0.0, 1.0, 2.0], indexing="ij")
+    rows = np.arange(height)[:, None, None] - 1 + i.reshape(1, 1, 9) + offsets[..., 0]
+    cols = np.arange(width)[None, :, None] - 1 + j.reshape(1, 1, 9) + offsets[..., 1]
+    return np.stack([rows, cols], axis=-1)
+
+
+def zero_padded_tables(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gather indices (4, H, W, K) int32 and weights (4, H, W, K) float32 for bilinear
+    sampling of an (H, W) map at ``positions`` (H, W, K, 2) = (row, col), every neighbour
+    outside the map weighted 0 (``deform_conv2d`` / ``grid_sample`` zero padding)."""
+    height, width = positions.shape[:2]
+    rows, cols = positions[..., 0], positions[..., 1]
+    r0, c0 = np.floor(rows), np.floor(cols)
+    fr, fc = rows - r0, cols - c0
+    r0, c0 = r0.astype(np.int64), c0.astype(np.int64)
+    index = np.zeros((4,) + rows.shape, np.int32)
+    weight = np.zeros((4,) + rows.shape, np.float32)
+    for n, (dr, dc, w) in enumerate([(0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc),
+                                     (1, 0, fr * (1 - fc)), (1, 1, fr * fc)]):
+        r, c = r0 + dr, c0 + dc
+        inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+        index[n] = np.clip(r, 0, height - 1) * width + np.clip(c, 0, width - 1)
+        weight[n] = np.where(inside, w, 0.0)
+    return index, weight
+
+
+TAPS = ("release", "tangent")
+
+
 @functools.lru_cache(maxsize=16)
-def _cached_tables(height: int, width: int, lat_min: float, lat_max: float):
+def _cached_tables(taps: str, height: int, width: int, lat_min: float, lat_max: float):
+    if taps == "release":
+        return zero_padded_tables(release_positions(
+            release_offsets(height, width, lat_min, lat_max)))
     return sampling_tables(tangent_offsets(height, width, lat_min, lat_max), width)
 
 
@@ -142,11 +224,15 @@ class SphericalConv(nnx.Module):
 
     ``__call__(x (B, H, W, C_in)) -> (B, H, W, C_out)``; H, W must equal the construction size.
     The map covers latitudes [lat_min, lat_max] (radians; default the hemisphere -90..0 deg with
-    the pole at row 0) and the full longitude circle.
+    the pole at row 0) and the full longitude circle; ``taps`` is ``'release'`` or ``'tangent'``
+    (module docstring).
     """
 
     def __init__(self, in_ch: int, out_ch: int, height: int, width: int, rngs: nnx.Rngs,
-                 lat_min: float = -math.pi / 2, lat_max: float = 0.0):
+                 lat_min: float = -math.pi / 2, lat_max: float = 0.0, taps: str = "release"):
+        if taps not in TAPS:
+            raise ValueError(f"spherical taps must be one of {TAPS}; found {taps!r}")
+        self.taps = taps
         self.height, self.width = height, width
         self.lat_range = (float(lat_min), float(lat_max))
         self.mix = nnx.Linear(9 * in_ch, out_ch, use_bias=False, kernel_init=kernel_init,
@@ -161,7 +247,7 @@ class SphericalConv(nnx.Module):
             )
         # The tables are compile-time constants (cached numpy), neither parameters nor state,
         # so checkpoints hold only the weights.
-        index, weight = _cached_tables(self.height, self.width, *self.lat_range)
+        index, weight = _cached_tables(self.taps, self.height, self.width, *self.lat_range)
         taps = gather_taps(x, jnp.asarray(index), jnp.asarray(weight))
         b, h, w, k, c = taps.shape
         return leaky_relu(self.bn(self.mix(taps.reshape(b, h, w, k * c))))

@@ -16,7 +16,7 @@ down2: conv s2 (f -> 2f) + BN + LReLU, 3 residual blocks    B x 4 x 20 x 80 x 19
 down3: conv s2 (2f -> 4f) + BN + LReLU, 3 residual blocks   B x 2 x 10 x 40 x 384         25.88 M
 up3: upsample x2, conv (4f -> 2f) + BN, + down2, LReLU      B x 4 x 20 x 80 x 192         1.99 M
 up2: upsample x2, conv (2f -> f) + BN, + down1, LReLU       B x 8 x 40 x 160 x 96         0.50 M
-up1: upsample x2, conv (f -> in) + BN, + cost volume, LReLU B x 16 x 80 x 320 x 48        0.12 M
+up1: upsample x2, conv (f -> in) + BN + LReLU (no skip)    B x 16 x 80 x 320 x 48        0.12 M
 head: conv (in -> 1) with bias, no norm, squeeze            B x 16 x 80 x 320 (logits)    1 297
 ==========================================================  ============================  =========
 
@@ -54,13 +54,14 @@ class DownStage(nnx.Module):
 
 
 class UpStage(nnx.Module):
-    """Trilinear x2 upsample, 3x3x3 conv + BN, add the skip, LeakyReLU."""
+    """Trilinear x2 upsample, 3x3x3 conv + BN, add the skip (when given), LeakyReLU."""
 
     def __init__(self, in_ch: int, out_ch: int, rngs: nnx.Rngs):
         self.conv = ConvBN(in_ch, out_ch, 3, 3, rngs, activate=False)
 
-    def __call__(self, x: Array, skip: Array) -> Array:
-        return leaky_relu(self.conv(upsample2(x, (1, 2, 3))) + skip)
+    def __call__(self, x: Array, skip: Array | None = None) -> Array:
+        y = self.conv(upsample2(x, (1, 2, 3)))
+        return leaky_relu(y if skip is None else y + skip)
 
 
 class UNet3D(nnx.Module):
@@ -95,5 +96,6 @@ class UNet3D(nnx.Module):
         s3 = self.down3(s2)
         x = self.up3(s3, s2)
         x = self.up2(x, s1)
-        x = self.up1(x, volume)
+        # The last stage has no skip from the cost volume, as in the release's `out_costs`.
+        x = self.up1(x)
         return self.head(x)[..., 0]

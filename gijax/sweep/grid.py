@@ -75,9 +75,33 @@ def sweep_grid(rig: Rig, candidates: Array, cost_pano: Panorama,
     return map_cameras(one, rig)
 
 
+def rescale_pixels(coords: Array, from_hw: tuple[int, int], to_hw: tuple[int, int]) -> Array:
+    """Pixel coordinates (..., 2) = (col, row) on a ``from_hw`` map -> the same points on a
+    ``to_hw`` map covering the same field (integer = pixel centre, so ``c + 0.5`` scales)."""
+    scale = jnp.asarray([to_hw[1] / from_hw[1], to_hw[0] / from_hw[0]], coords.dtype)
+    return (coords + 0.5) * scale - 0.5
+
+
 def feature_to_surrogate(coords: Array, feature_pano: Panorama,
                          surrogate_pano: Panorama) -> Array:
     """Feature-map pixel coordinates (..., 2) -> surrogate pixel coordinates (same directions)."""
-    scale = jnp.asarray([surrogate_pano.width / feature_pano.width,
-                         surrogate_pano.height / feature_pano.height], coords.dtype)
-    return (coords + 0.5) * scale - 0.5
+    return rescale_pixels(coords, feature_pano.shape, surrogate_pano.shape)
+
+
+def pixels_from_normalised(grid: Array, height: int, width: int) -> Array:
+    """PyTorch ``grid_sample`` coordinates (..., 2) = (x, y) in [-1, 1] with
+    ``align_corners=False`` -> gijax pixel coordinates (col, row) on an ``height`` x ``width``
+    map (integer = pixel centre).
+
+    With ``align_corners=False``, -1 and +1 are the outer edges of the first and last pixels,
+    so ``col = ((x + 1) W - 1) / 2`` and ``row = ((y + 1) H - 1) / 2``; this is the one place
+    where grids made by the authors' code (the release's sweep grids) enter gijax.
+    """
+    size = jnp.asarray([width, height], grid.dtype)
+    return ((grid + 1.0) * size - 1.0) / 2.0
+
+
+def normalised_from_pixels(coords: Array, height: int, width: int) -> Array:
+    """The inverse of :func:`pixels_from_normalised`."""
+    size = jnp.asarray([width, height], coords.dtype)
+    return (2.0 * coords + 1.0) / size - 1.0

@@ -2,7 +2,7 @@
 
 The network consumes, per camera, an equirectangular image of the hemisphere around that
 camera's optical axis (latitude -90..0 deg with the pole on the axis, longitude -180..180 deg;
-512 x 2048 in the paper). Pixels the lens does not see, or that its mask marks invalid, are 0.
+512 x 2048 in the paper). Pixels the lens does not see are 0; the per-camera mask is resampled beside the colours.
 Sampling is bilinear by a 4-neighbour gather (:func:`gijax.sampling.bilinear_sample`).
 """
 
@@ -28,18 +28,43 @@ def surrogate_grid(cam, pano: Panorama) -> tuple[Array, Array]:
     return cam_lib.project(cam, rays)
 
 
-def surrogate_image(cam, image: Array, mask: Array, pano: Panorama) -> tuple[Array, Array]:
-    """One camera: image (h, w, C) float and mask (h, w) -> surrogate (H, W, C) and mask (H, W).
+def surrogate_maps(rig: Rig, pano: Panorama) -> tuple[Array, Array]:
+    """All cameras' surrogate grids: (N, H, W, 2) fisheye pixels and (N, H, W) validity.
 
-    The returned mask is the bilinearly resampled validity mask times the projection validity,
-    so it is fractional near mask edges; use ``> 0.5`` for a binary decision. The surrogate
-    colours are zeroed where that mask is at most 0.5.
+    They depend only on the rig's intrinsics, so a loader or an exported graph computes them
+    once and reuses them for every sample.
     """
-    px, ok = surrogate_grid(cam, pano)
+    return map_cameras(lambda cam, *_: surrogate_grid(cam, pano), rig)
+
+
+def resample_surrogate(px: Array, ok: Array, image: Array,
+                       mask: Array | None = None) -> tuple[Array, Array]:
+    """One camera's surrogate from its grid: image (h, w, C), mask (h, w) -> (H, W, C), (H, W).
+
+    Colours are sampled bilinearly and are 0 where the lens does not see (outside its field of
+    view or image); they are not zeroed under the rig mask, as in the release, whose network
+    sees the rig body and learns to ignore it through the mask. The mask is resampled
+    bilinearly too (fractional at mask edges) and is 0 outside the lens; without a mask the
+    lens validity (0 / 1) is returned in its place.
+    """
     img, ok_img = bilinear_sample(image, px, ok)
+    if mask is None:
+        return img, ok_img.astype(img.dtype)
     m, _ = bilinear_sample(mask[..., None].astype(image.dtype), px, ok)
-    m = m[..., 0] * ok_img
-    return img * (m > 0.5)[..., None], m
+    return img, m[..., 0] * ok_img
+
+
+def resample_surrogates(px: Array, ok: Array, images: Array,
+                        masks: Array | None = None) -> tuple[Array, Array]:
+    """:func:`resample_surrogate` for every camera: grids (N, H, W, 2), (N, H, W) from
+    :func:`surrogate_maps`, images (N, h, w, C), masks (N, h, w) or None."""
+    return jax.vmap(resample_surrogate)(px, ok, images, masks)
+
+
+def surrogate_image(cam, image: Array, mask: Array, pano: Panorama) -> tuple[Array, Array]:
+    """One camera: image (h, w, C) float and mask (h, w) -> surrogate (H, W, C) and mask (H, W)
+    (see :func:`resample_surrogate`)."""
+    return resample_surrogate(*surrogate_grid(cam, pano), image, mask)
 
 
 def check_images(rig: Rig, images, masks=None) -> None:
