@@ -1,10 +1,11 @@
 """The demo: fresh scenes on the training rig and on a new 4-camera rig, every method, one figure.
 
 For each rig it renders a new scene with exact labels, runs the bundled learned model (with its
-training candidates and with the two lists recomputed for the rig: rig-aware GI and the closed
-form at the rig's camera spacing) and the classical RTSS baseline,
-prints MAE / RMSE / SSIM / time, writes one figure (inputs, ground truth, predictions, error
-maps) and a coloured point cloud of the learned prediction on the training rig.
+training candidates, with the paper's list recomputed for the rig, the closed-form GI at the
+rig's camera spacing, and with gijax's rig-aware GI list) and the classical RTSS baseline,
+prints MAE / RMSE / SSIM (the paper's definitions, :mod:`gijax.train.metrics`) and time, writes
+one figure (inputs, ground truth, predictions, error maps) and a coloured point cloud of the
+learned prediction on the training rig.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ def _metrics(inv_pred: np.ndarray, distance: np.ndarray, candidates) -> dict:
     # a full image, so empty pixels take the method's own mean there.
     filled = np.where(ok, inv_pred, np.nanmean(inv_pred) if ok.any() else 0.0)
     out = evaluate_batch(filled[None].astype(np.float32), distance[None], (ok & label_ok)[None],
-                         np.asarray(candidates, np.float32))
+                         np.asarray(candidates, np.float32), metric_set="paper")
     out["coverage"] = float((ok & label_ok).sum() / max(label_ok.sum(), 1))
     return out
 
@@ -91,12 +92,13 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
         sample = render_sample(small, seed + k, pano=pano)
         bar.update(1)
         methods = []
-        # Two ways to recompute the list for the rig (docs/candidates.md); on new layouts the
-        # closed form at the camera spacing restores most (experiments/RESULTS.md).
+        # The paper's recomputed list (closed form at the rig's camera spacing) first, then
+        # gijax's rig-aware list (docs/candidates.md); on the training rig the paper's list is
+        # the training list itself.
         n = config.num_candidates
         cands = {"training candidates": np.asarray(train_cand),
-                 "rig-aware GI": np.asarray(rig_gi_candidates(rig, n)),
-                 "GI at camera spacing": np.asarray(spacing_gi_candidates(rig, n))}
+                 "paper's GI at camera spacing": np.asarray(spacing_gi_candidates(rig, n)),
+                 "rig-aware GI (gijax)": np.asarray(rig_gi_candidates(rig, n))}
         for label, cand in cands.items():
             bar.set_postfix_str(f"{name}: {config.name} ({label})")
             res, secs = _timed(lambda: predict(model, small, sample["images"], sample["masks"],
@@ -131,7 +133,8 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
 
 
 def format_table(table: dict, seed: int) -> str:
-    lines = [f"scene seed {seed}; inverse distance metrics in 1/m (lower MAE/RMSE is better)",
+    lines = [f"scene seed {seed}; inverse distance metrics in 1/m as the paper defines them "
+             f"(lower MAE/RMSE is better)",
              f"{'rig':<12} {'method':<40} {'MAE':>7} {'RMSE':>7} {'SSIM':>6} {'cover':>6} "
              f"{'time s':>7}"]
     for rig, methods in table.items():

@@ -84,26 +84,37 @@ def test_new_layout_table(smoke):
     doc = smoke["docs"][("first", "new")]
     keys = [(r["layout"], r["model"], r["eval_candidates"]) for r in doc["rows"]]
     assert keys == [(layout, *k) for layout in ("paper-test2", "paper-test3", "paper-train-1m")
-                    for k in (("RS-E16", "ev"), ("G16VV", "train"), ("G16VV", "rig"),
-                              ("G16VV", "spacing"))]
+                    for k in (("RS-E16", "ev"), ("G16VV", "train"), ("G16VV", "spacing"),
+                              ("G16VV", "rig"))]
     for r in doc["rows"]:
         _check_metrics(r)
     by = {k: r for k, r in zip(keys, doc["rows"])}
-    # The recomputed list (rig-aware GI for the test rig) differs from the training list and
-    # spans the same range.
     for layout in ("paper-test2", "paper-test3", "paper-train-1m"):
+        # The paper's recomputed list is the closed form at the 1 m spacing of all three
+        # layouts; gijax's rig-aware list differs from the training list, same range.
+        np.testing.assert_allclose(by[(layout, "G16VV", "spacing")]["candidates"],
+                                   closed_form_at_1m(), rtol=1e-6)
         train = np.array(by[(layout, "G16VV", "train")]["candidates"])
         new = np.array(by[(layout, "G16VV", "rig")]["candidates"])
         assert train.shape == new.shape == (16,)
         assert not np.allclose(train, new)
         assert new[0] == pytest.approx(0.5) and new[-1] == pytest.approx(100.0)
-        # The spacing list is the closed form at the 1 m spacing of all three layouts.
-        np.testing.assert_allclose(by[(layout, "G16VV", "spacing")]["candidates"],
-                                   closed_form_at_1m(), rtol=1e-6)
+        assert by[(layout, "G16VV", "spacing")]["metric_set"] == "paper"
+        assert by[(layout, "G16VV", "spacing")]["mae_gijax"] > 0
     assert by[("paper-test3", "G16VV", "train")]["cameras"] == 4
     assert [c["claim"][:3] for c in doc["claims"]] == ["(b)", "(b,", "(c)"]
+    assert "camera spacing" in doc["claims"][0]["claim"]
+    assert doc["claims"][1]["claim"].startswith("(b, rig)")
     for claim in doc["claims"][:2]:
         assert set(claim["numbers"]) == {"paper-test2/G16VV", "paper-test3/G16VV"}
+    # What the rig-aware rule gives: on the training rig an EV-like list, not the released G16
+    # (which is the paper's list there).
+    rig_aware = {s["rig"]: s for s in doc["rig_aware_lists"]}
+    assert set(rig_aware) == {"paper-train", "paper-test2", "paper-test3", "paper-train-1m"}
+    train_rig = rig_aware["paper-train"]
+    assert train_rig["camera_spacing_m"] == pytest.approx(0.3095, abs=1e-3)
+    assert train_rig["max_rel_dev_from_ev"] < 0.05 < train_rig["max_rel_dev_from_paper"]
+    assert rig_aware["paper-test2"]["camera_spacing_m"] == pytest.approx(1.0, abs=1e-3)
     # Step table: the rig-aware list has equal mean steps by construction, and a wider rig
     # moves features further per step than the training rig with the same list.
     steps = {(s["rig"], s["list"]): s for s in doc["candidate_steps"]}
@@ -183,28 +194,38 @@ def test_evaluate_matches_numpy_reference():
     cand = np.geomspace(0.5, 100.0, 8)
     samples, preds, ests = [], [], []
     for _ in range(2):
-        dist = rng.uniform(0.3, 150.0, (8, 16)).astype(np.float32)
-        dist[0, :3] = 1e6                      # sky: clamped to the far candidate
+        dist = rng.uniform(0.3, 150.0, (12, 16)).astype(np.float32)
+        dist[0, :3] = 1e6                      # sky: excluded (paper), clamped (gijax)
         dist[1, 0] = np.nan                    # unusable label
         samples.append({"images": None, "masks": None, "pano_distance": dist})
-        preds.append(rng.uniform(0.0, 2.0, (8, 16)).astype(np.float32))
-        est = rng.uniform(size=(8, 16)) > 0.2
+        preds.append(rng.uniform(0.0, 2.0, (12, 16)).astype(np.float32))
+        est = rng.uniform(size=(12, 16)) > 0.2
         ests.append(est)
     calls = iter(zip(preds, ests))
     metrics, first = C.evaluate(_Reader(samples),
                                 C.Predictor(lambda im, m: next(calls), cand, 1.0))
-    errs, est_count, lab_count = [], 0, 0
+    errs, paper_mae, paper_rmse, est_count, lab_count = [], [], [], 0, 0
     for s, p, e in zip(samples, preds, ests):
         d = s["pano_distance"].astype(np.float64)
         lab = np.isfinite(d) & (d > 0)
         target = np.clip(1.0 / np.where(lab, d, 100.0), 1 / 100.0, 1 / 0.5)
         use = lab & e
         errs.append((p - target)[use])
+        inside = use & (d >= 0.5) & (d <= 100.0)
+        e_in = p[inside] - 1.0 / d[inside]
+        paper_mae.append(np.abs(e_in).mean())
+        paper_rmse.append(np.sqrt((e_in ** 2).mean()))
         est_count += use.sum()
         lab_count += lab.sum()
     errs = np.concatenate(errs)
-    assert metrics["mae"] == pytest.approx(np.abs(errs).mean(), rel=1e-5)
-    assert metrics["rmse"] == pytest.approx(np.sqrt((errs ** 2).mean()), rel=1e-5)
+    # The paper's columns: per-sample values over in-range labels, averaged over samples.
+    assert metrics["metric_set"] == "paper"
+    assert metrics["mae"] == pytest.approx(np.mean(paper_mae), rel=1e-5)
+    assert metrics["rmse"] == pytest.approx(np.mean(paper_rmse), rel=1e-5)
+    # gijax's beside them: clamped labels pooled over all estimated pixels.
+    assert metrics["mae_gijax"] == pytest.approx(np.abs(errs).mean(), rel=1e-5)
+    assert metrics["rmse_gijax"] == pytest.approx(np.sqrt((errs ** 2).mean()), rel=1e-5)
+    assert metrics["pixels_gijax"] == est_count > metrics["pixels"]
     assert metrics["coverage"] == pytest.approx(est_count / lab_count)
     assert metrics["samples"] == 2
     np.testing.assert_array_equal(np.isnan(first), ~ests[0])
@@ -232,15 +253,15 @@ def test_claim_b_pairs_and_reductions():
     rows = [{"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
              "eval_candidates": "train", "mae": 0.030},
             {"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
-             "eval_candidates": "rig", "mae": 0.020},
+             "eval_candidates": "spacing", "mae": 0.020},
             {"layout": "paper-test3", "model": "E16", "kind": "learned", "status": "n/a",
              "eval_candidates": "-", "mae": None},
             {"layout": "paper-test3", "model": "G16VV", "kind": "learned", "status": "ok",
              "eval_candidates": "train", "mae": 0.024},
             {"layout": "paper-test3", "model": "G16VV", "kind": "learned", "status": "ok",
-             "eval_candidates": "rig", "mae": 0.016}]
+             "eval_candidates": "spacing", "mae": 0.016}]
     b = C.claim_recomputed_candidates(rows)
-    assert b["status"] == "PASS"
+    assert b["status"] == "PASS" and b["claim"].startswith("(b) the paper's")
     assert b["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(100 / 3)
     assert b["numbers"]["paper-test3/G16VV"]["reduction_percent"] == pytest.approx(100 / 3)
     rows[1]["mae"] = 0.031
@@ -249,13 +270,13 @@ def test_claim_b_pairs_and_reductions():
     scoped = C.claim_recomputed_candidates(rows, lambda r: r["model"] != "G16")
     assert scoped["status"] == "PASS" and "beside the paper's scope: G16" in scoped["detail"]
     assert scoped["numbers"]["paper-test2/G16"]["in_scope"] is False
-    # The same check for another recomputed list pairs its own rows with the training list.
+    # The same check for gijax's rig-aware list pairs its own rows with the training list.
     rows.append({"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
-                 "eval_candidates": "spacing", "mae": 0.015})
-    spacing = C.claim_recomputed_candidates(rows, new="spacing")
-    assert spacing["status"] == "PASS" and spacing["claim"].startswith("(b, spacing)")
-    assert spacing["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(50.0)
-    assert "paper-test3/G16VV" not in spacing["numbers"]      # no spacing row there
+                 "eval_candidates": "rig", "mae": 0.015})
+    rig = C.claim_recomputed_candidates(rows, new="rig")
+    assert rig["status"] == "PASS" and rig["claim"].startswith("(b, rig)")
+    assert rig["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(50.0)
+    assert "paper-test3/G16VV" not in rig["numbers"]          # no rig-aware row there
 
 
 def test_concat_models_cannot_take_four_cameras():

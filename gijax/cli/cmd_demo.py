@@ -18,10 +18,10 @@ def register(sub) -> None:
         description=(
             "Renders a fresh scene with exact labels on the training rig (paper-train, 3 cameras "
             "0.31 m apart) and on a new rig (paper-test3, 4 cameras 1 m apart), runs the bundled "
-            "G16VV-cpu model with its training candidates and with two lists recomputed for "
-            "the rig (rig-aware GI; closed-form GI at the rig's camera spacing), and the "
-            "classical RTSS baseline, prints MAE / RMSE / SSIM (inverse "
-            "distance, 1/m) and time, and writes demo.png (inputs, ground truth, predictions, "
+            "G16VV-cpu model with its training candidates, with the paper's list recomputed "
+            "for the rig (closed-form GI at the rig's camera spacing) and with gijax's "
+            "rig-aware GI list, and the classical RTSS baseline, prints MAE / RMSE / SSIM "
+            "(inverse distance, 1/m, the paper's definitions) and time, and writes demo.png (inputs, ground truth, predictions, "
             "error maps), points.ply (coloured point cloud) and demo.json."),
     )
     p.add_argument("--out", default="gijax-demo", help="output folder (default: gijax-demo)")

@@ -36,7 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--dynamic-batch", action="store_true", help="symbolic batch axis")
     p.add_argument("--rig-as-input", action="store_true",
                    help="intrinsics, poses, reference and candidates as graph inputs")
-    p.add_argument("--candidates", default="train", metavar="train|rig|spacing|ev|FILE",
+    p.add_argument("--candidates", default="train", metavar="train|spacing|rig|ev|FILE",
                    help="candidates baked in / used for validation (as in 'gijax predict')")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.add_argument("--no-validate", action="store_true",

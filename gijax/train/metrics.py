@@ -1,20 +1,52 @@
-"""Evaluation metrics on inverse distance (1/m), as in the paper's tables.
+"""Evaluation metrics on inverse distance (1/m): the paper's definitions and gijax's own.
 
 Shapes: predicted inverse distance ``inv_pred`` (B, H, W) in 1/m, label ``distance`` (B, H, W)
-in metres (sky / no hit stored as 1e6 m), ``valid`` (B, H, W), ``candidates`` (D,) ascending
-metres. The label is converted to inverse distance and clamped to the candidate range
-[1/d_max, 1/d_min] (0.01..2 for the paper's 0.5..100 m) before every metric.
+in metres (sky / no hit stored as 1e6 m), ``valid`` (B, H, W) (usable label and, where a method
+leaves holes, an estimate), ``candidates`` (D,) ascending metres. Two sets of definitions,
+chosen by ``metric_set``:
 
-* MAE and RMSE: over usable pixels (valid, finite positive label) of ``|inv_pred - inv_gt|``.
+``'paper'``: the metrics as the authors' release computed them for the paper's tables. The
+release works in units of ``bf/d`` with ``bf = 96`` and divides both maps by ``bf`` before every
+metric, so everything is on inverse distance in 1/m, as here. It evaluated one sample per
+batch and averaged the per-batch values, so each metric is computed per sample and then
+averaged over samples (whatever the batch size here).
+
+* Pixel set for MAE, RMSE and the bad-pixel rates: usable labels whose distance lies inside
+  the candidate range, ``candidates[0] <= d <= candidates[-1]`` (0.5 m to 100 m for every paper
+  model), both ends included. Sky (1e6 m) and anything nearer than the nearest candidate are
+  left out, not clamped.
+* MAE and RMSE: per sample, the mean of ``|e|`` and the root of the mean of ``e^2`` over that
+  pixel set (``e = inv_pred - 1/d``); the dataset value is the mean over samples. A sample with
+  no pixel in the set is skipped (the release would have produced NaN).
+* SSIM: ``torchmetrics.functional.structural_similarity_index_measure`` with its defaults as of
+  the release (torchmetrics < 1.5): 11 x 11 Gaussian window (sigma 1.5, the outer product of
+  two 1-D windows each normalised to sum 1), reflect padding of 5 pixels (the edge pixel is not
+  repeated), biased (Gaussian-weighted) variances clamped at 0, ``C1 = (0.01 L)^2``,
+  ``C2 = (0.03 L)^2`` with ``L = max(ptp(pred), ptp(target))`` taken from the sample itself,
+  and the mean over the map after cropping its 5-pixel border. torchmetrics 1.5 dropped that
+  crop; the paper's figures predate it. The target is the label inverse distance clamped to
+  the candidate range (sky -> 1/100, nearer than 0.5 m -> 2), over the whole image, unmasked
+  (the release's SSIM takes no mask). Where ``valid`` is false the target takes the predicted
+  value (the release's labels had no such pixels). Because ``L`` comes from the data, SSIM on
+  ``96/d`` and on 1/m are the same number (both constants scale with the square of the
+  values); it is computed on 1/m, like the release.
+* Bad-pixel rates ``bad_0.1`` / ``bad_0.4``: per sample, the share of the MAE pixel set whose
+  ``|e|`` exceeds 0.1 / 0.4 1/m (the release's BadPixelRatioMetric on 1/m), mean over samples.
+
+``'gijax'``: gijax's own definitions (the validation metric of ``gijax train``).
+
+* The label is converted to inverse distance and clamped to the candidate range
+  ``[1/d_max, 1/d_min]`` (0.01..2 for 0.5..100 m) before every metric, so sky pixels (error
+  against 0.01) and pixels nearer than 0.5 m (error against 2) are scored.
+* MAE, RMSE and bad-pixel rates: pooled over all usable pixels (``valid``, finite positive
+  label) of all samples.
 * SSIM: Wang et al. (2004) with an 11 x 11 Gaussian window (sigma 1.5, normalised to sum 1),
-  zero padding at the borders ('same' size), constants ``C1 = (0.01 L)^2``, ``C2 = (0.03 L)^2``
-  with data range ``L = 1`` by default (the constants of the common PyTorch SSIM used by
-  the original release), averaged over the whole image. Unusable label pixels take the predicted
-  value, so they neither help nor hurt the structure term.
-* Bad-pixel rates ``bad_0.1`` and ``bad_0.4``: fraction of usable pixels whose absolute
-  inverse-distance error ``|inv_pred - inv_gt|`` exceeds 0.1 and 0.4 1/m. The thresholds of
-  Meuleman et al. (2021) apply to absolute inverse-depth error; here that error is taken in 1/m
-  on the clamped labels (0.1 and 0.4 1/m are 5 % and 20 % of the 0.01..2 range).
+  zero padding at the borders ('same' size), fixed ``C1 = (0.01 L)^2``, ``C2 = (0.03 L)^2`` with
+  ``L = 1`` by default, averaged over the whole image including its border; the mean of the
+  per-sample values. Unusable label pixels take the predicted value.
+
+The thresholds of the bad-pixel rates (Meuleman et al. 2021) apply to absolute inverse-depth
+error, taken here in 1/m (0.1 and 0.4 1/m are 5 % and 20 % of the 0.01..2 range).
 """
 
 from __future__ import annotations
@@ -32,6 +64,18 @@ Array = jax.Array
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 BAD_THRESHOLDS = (0.1, 0.4)
+METRIC_SETS = ("paper", "gijax")
+# Per-sample values each set's batch_sums returns (summarize checks them).
+SUM_KEYS = {
+    "paper": ("count", "mae", "rmse", "ssim") + tuple(f"bad_{t}" for t in BAD_THRESHOLDS),
+    "gijax": ("count", "abs", "sq", "ssim") + tuple(f"bad_{t}" for t in BAD_THRESHOLDS),
+}
+
+
+def check_metric_set(metric_set: str) -> str:
+    if metric_set not in METRIC_SETS:
+        raise ValueError(f"metric_set must be one of {METRIC_SETS}; found {metric_set!r}")
+    return metric_set
 
 
 def gaussian_window_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:
@@ -41,22 +85,31 @@ def gaussian_window_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np
     return (g / g.sum()).astype(np.float32)
 
 
-def _blur(x: Array, taps: np.ndarray) -> Array:
-    """Separable 'same' Gaussian filter with zero padding on (B, H, W)."""
+def _blur(x: Array, taps: np.ndarray, padding: str = "zero") -> Array:
+    """Separable Gaussian filter on (B, H, W), output (B, H, W).
+
+    ``padding='zero'``: 'same' convolution with zeros outside. ``'reflect'``: the image is
+    mirrored about its edge pixels (numpy / torch 'reflect') before a 'valid' convolution.
+    """
     k = jnp.asarray(taps)
     n = k.shape[0]
-    y = x[:, None]                                             # (B, 1, H, W)
-    kh = k.reshape(1, 1, n, 1)
-    kw = k.reshape(1, 1, 1, n)
     pad = n // 2
-    y = jax.lax.conv_general_dilated(y, kh, (1, 1), ((pad, pad), (0, 0)))
-    y = jax.lax.conv_general_dilated(y, kw, (1, 1), ((0, 0), (pad, pad)))
+    if padding == "reflect":
+        x = jnp.pad(x, ((0, 0), (pad, pad), (pad, pad)), mode="reflect")
+        pad_h = pad_w = ((0, 0), (0, 0))                       # 'valid' on the padded image
+    elif padding == "zero":
+        pad_h, pad_w = ((pad, pad), (0, 0)), ((0, 0), (pad, pad))
+    else:
+        raise ValueError(f"padding must be 'zero' or 'reflect'; found {padding!r}")
+    y = x[:, None]                                             # (B, 1, H, W)
+    y = jax.lax.conv_general_dilated(y, k.reshape(1, 1, n, 1), (1, 1), pad_h)
+    y = jax.lax.conv_general_dilated(y, k.reshape(1, 1, 1, n), (1, 1), pad_w)
     return y[:, 0]
 
 
 def ssim_map(x: Array, y: Array, data_range: float = 1.0, window: int = SSIM_WINDOW,
              sigma: float = SSIM_SIGMA) -> Array:
-    """(B, H, W) SSIM map between two image batches (B, H, W) (see the module docstring)."""
+    """(B, H, W) SSIM map of gijax's definition: zero padding, fixed data range (module doc)."""
     taps = gaussian_window_1d(window, sigma)
     x = x.astype(jnp.float32)
     y = y.astype(jnp.float32)
@@ -69,6 +122,37 @@ def ssim_map(x: Array, y: Array, data_range: float = 1.0, window: int = SSIM_WIN
     return ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
 
 
+def paper_ssim(x: Array, y: Array) -> Array:
+    """(B,) SSIM of each image pair as torchmetrics (< 1.5) computes it with its defaults on a
+    batch of one: data range from the pair, reflect padding, 5-pixel border cropped.
+
+    ``x`` the prediction, ``y`` the target, both (B, H, W) with H, W > 10. A pair of constant
+    images has data range 0 and gives NaN, as in torchmetrics.
+    """
+    if x.shape != y.shape or x.ndim != 3:
+        raise ValueError(f"paper_ssim takes two (B, H, W) batches of one shape; found "
+                         f"{x.shape} and {y.shape}")
+    pad = SSIM_WINDOW // 2
+    if min(x.shape[1:]) <= 2 * pad:
+        raise ValueError(f"SSIM needs images larger than {2 * pad} x {2 * pad} (its window "
+                         f"border is cropped); found {x.shape[1:]}")
+    taps = gaussian_window_1d(SSIM_WINDOW, SSIM_SIGMA)
+    x = x.astype(jnp.float32)
+    y = y.astype(jnp.float32)
+    ptp = lambda a: jnp.max(a, axis=(1, 2)) - jnp.min(a, axis=(1, 2))  # noqa: E731
+    data_range = jnp.maximum(ptp(x), ptp(y))[:, None, None]
+    c1 = (0.01 * data_range) ** 2
+    c2 = (0.03 * data_range) ** 2
+    mx, my = _blur(x, taps, "reflect"), _blur(y, taps, "reflect")
+    mxx, myy, mxy = mx * mx, my * my, mx * my
+    # Rounding can make E[x^2] - E[x]^2 slightly negative; torchmetrics clamps it at 0.
+    sxx = jnp.maximum(_blur(x * x, taps, "reflect") - mxx, 0.0)
+    syy = jnp.maximum(_blur(y * y, taps, "reflect") - myy, 0.0)
+    sxy = _blur(x * y, taps, "reflect") - mxy
+    s = ((2 * mxy + c1) * (2 * sxy + c2)) / ((mxx + myy + c1) * (sxx + syy + c2))
+    return jnp.mean(s[:, pad:-pad, pad:-pad], axis=(1, 2))
+
+
 def inverse_errors(inv_pred: Array, distance: Array, valid: Array, candidates: Array):
     """Per-pixel ``inv_pred - inv_gt`` (B, H, W), usable-pixel mask (B, H, W), clamped target."""
     target = clamped_inverse(distance, candidates)
@@ -76,10 +160,45 @@ def inverse_errors(inv_pred: Array, distance: Array, valid: Array, candidates: A
     return inv_pred.astype(jnp.float32) - target, m, target
 
 
-@functools.partial(jax.jit, static_argnames=("data_range",))
-def batch_sums(inv_pred: Array, distance: Array, valid: Array, candidates: Array,
-               data_range: float = 1.0) -> dict:
-    """Per-sample sums for accumulating metrics over many batches (each value has shape (B,)).
+def paper_label_mask(distance: Array, valid: Array, candidates: Array) -> Array:
+    """(B, H, W) float32: 1 where the label is usable and inside the candidate range
+    ``candidates[0] <= d <= candidates[-1]`` (the paper's pixel set for MAE and RMSE)."""
+    cand = jnp.asarray(candidates, jnp.float32)
+    d = distance.astype(jnp.float32)
+    inside = (d >= cand[0]) & (d <= cand[-1])
+    return label_mask(distance, valid) * inside.astype(jnp.float32)
+
+
+def paper_sample_metrics(inv_pred: Array, distance: Array, valid: Array,
+                         candidates: Array) -> dict:
+    """Per-sample values of the paper's definitions (each (B,); see the module docstring).
+
+    Keys: ``count`` (pixels in the MAE set), ``mae``, ``rmse``, ``bad_0.1``, ``bad_0.4`` (0
+    where ``count`` is 0) and ``ssim``.
+    """
+    inv_pred = inv_pred.astype(jnp.float32)
+    target = clamped_inverse(distance, candidates)
+    m = paper_label_mask(distance, valid, candidates)
+    err = inv_pred - target              # inside the range the clamp leaves the label alone
+    count = jnp.sum(m, axis=(1, 2))
+    denom = jnp.maximum(count, 1.0)
+    filled = jnp.where(label_mask(distance, valid) > 0, target, inv_pred)
+    out = {
+        "count": count,
+        "mae": jnp.sum(jnp.abs(err) * m, axis=(1, 2)) / denom,
+        # sqrt(0) has an infinite derivative; the inner where keeps gradients finite.
+        "rmse": jnp.where(count > 0, jnp.sqrt(jnp.where(
+            count > 0, jnp.sum(err * err * m, axis=(1, 2)) / denom, 1.0)), 0.0),
+        "ssim": paper_ssim(inv_pred, filled),
+    }
+    for t in BAD_THRESHOLDS:
+        out[f"bad_{t}"] = jnp.sum((jnp.abs(err) > t) * m, axis=(1, 2)) / denom
+    return out
+
+
+def gijax_batch_sums(inv_pred: Array, distance: Array, valid: Array, candidates: Array,
+                     data_range: float = 1.0) -> dict:
+    """Per-sample sums of gijax's definitions (each (B,)).
 
     Keys: ``count`` (usable pixels), ``abs`` (sum |e|), ``sq`` (sum e^2), ``bad_0.1`` and
     ``bad_0.4`` (counts), ``ssim`` (mean SSIM of each sample over its whole image).
@@ -97,29 +216,60 @@ def batch_sums(inv_pred: Array, distance: Array, valid: Array, candidates: Array
     return out
 
 
-def summarize(sums: dict) -> dict:
-    """Dataset metrics from concatenated per-sample sums (numpy or jax arrays of shape (N,)).
+@functools.partial(jax.jit, static_argnames=("data_range", "metric_set"))
+def batch_sums(inv_pred: Array, distance: Array, valid: Array, candidates: Array,
+               data_range: float = 1.0, metric_set: str = "gijax") -> dict:
+    """Per-sample values for accumulating metrics over many batches (each of shape (B,)).
 
-    MAE, RMSE and the bad-pixel rates pool all usable pixels of all samples; SSIM is the mean
-    of the per-sample SSIMs (each over its whole image).
+    ``metric_set`` 'paper' -> :func:`paper_sample_metrics`, 'gijax' ->
+    :func:`gijax_batch_sums` (``data_range`` applies to gijax's SSIM only). Concatenate the
+    values of all batches and pass them to :func:`summarize` with the same ``metric_set``.
     """
-    count = float(np.sum(sums["count"]))
-    denom = max(count, 1.0)
-    out = {
-        "mae": float(np.sum(sums["abs"])) / denom,
-        "rmse": float(np.sqrt(float(np.sum(sums["sq"])) / denom)),
-        "ssim": float(np.mean(sums["ssim"])) if len(np.atleast_1d(sums["ssim"])) else float("nan"),
-        "pixels": int(count),
-        "samples": int(len(np.atleast_1d(sums["count"]))),
-    }
+    check_metric_set(metric_set)
+    if metric_set == "paper":
+        return paper_sample_metrics(inv_pred, distance, valid, candidates)
+    return gijax_batch_sums(inv_pred, distance, valid, candidates, data_range)
+
+
+def summarize(sums: dict, metric_set: str = "gijax") -> dict:
+    """Dataset metrics from concatenated per-sample values (arrays of shape (N,)).
+
+    'paper': MAE, RMSE and bad-pixel rates are means of the per-sample values over the samples
+    with at least one pixel in range (NaN if none has), SSIM the mean over all samples.
+    'gijax': MAE, RMSE and bad-pixel rates pool all usable pixels of all samples; SSIM is the
+    mean of the per-sample SSIMs. Both return mae, rmse, ssim, bad_0.1, bad_0.4, pixels and
+    samples as Python numbers.
+    """
+    check_metric_set(metric_set)
+    missing = [k for k in SUM_KEYS[metric_set] if k not in sums]
+    if missing:
+        raise ValueError(f"summarize(metric_set={metric_set!r}) needs the per-sample values "
+                         f"{SUM_KEYS[metric_set]}; missing {missing} (were they computed with "
+                         f"another metric_set?)")
+    count = np.asarray(sums["count"], np.float64).reshape(-1)
+    ssim = np.asarray(sums["ssim"], np.float64).reshape(-1)
+    out = {"ssim": float(np.mean(ssim)) if ssim.size else float("nan"),
+           "pixels": int(np.sum(count)), "samples": int(count.size)}
+    if metric_set == "paper":
+        has = count > 0
+        mean = (lambda k: float(np.mean(np.asarray(sums[k], np.float64).reshape(-1)[has]))
+                if np.any(has) else float("nan"))
+        out.update(mae=mean("mae"), rmse=mean("rmse"))
+        for t in BAD_THRESHOLDS:
+            out[f"bad_{t}"] = mean(f"bad_{t}")
+        return out
+    denom = max(float(np.sum(count)), 1.0)
+    out.update(mae=float(np.sum(sums["abs"])) / denom,
+               rmse=float(np.sqrt(float(np.sum(sums["sq"])) / denom)))
     for t in BAD_THRESHOLDS:
         out[f"bad_{t}"] = float(np.sum(sums[f"bad_{t}"])) / denom
     return out
 
 
 def evaluate_batch(inv_pred: Array, distance: Array, valid: Array, candidates: Array,
-                   data_range: float = 1.0) -> dict:
-    """Metrics of one batch as Python floats: mae, rmse, ssim, bad_0.1, bad_0.4, pixels, samples."""
+                   data_range: float = 1.0, metric_set: str = "gijax") -> dict:
+    """Metrics of one batch as Python numbers: mae, rmse, ssim, bad_0.1, bad_0.4, pixels,
+    samples (``metric_set`` 'paper' or 'gijax', see the module docstring)."""
     sums = batch_sums(inv_pred, distance, valid, jnp.asarray(candidates, jnp.float32),
-                      data_range=data_range)
-    return summarize(jax.tree.map(np.asarray, sums))
+                      data_range=data_range, metric_set=metric_set)
+    return summarize(jax.tree.map(np.asarray, sums), metric_set)
