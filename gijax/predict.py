@@ -1,10 +1,16 @@
 """Inference: raw fisheye images -> distance panorama, and the files that show it.
 
 :func:`predict` is pure (arrays in, arrays out): raw images are resampled to the model's
-surrogate images (:func:`gijax.sweep.surrogate.surrogate_images`) and run through the network in
-eval mode (BatchNorm running statistics). :func:`write_prediction` writes the results: the
+surrogate images and run through the network in eval mode (BatchNorm running statistics), both
+by :func:`gijax.model.forward` with grids from :func:`gijax.model.make_grids`. :func:`write_prediction` writes the results: the
 distance panorama as float32 ``.npy``, colour-mapped PNGs with colour bars (distance and
-uncertainty) and a coloured point cloud (``.ply``).
+uncertainty), a coloured point cloud (``.ply``) and the per-pixel validity.
+
+Invalid pixels (seen by fewer cameras than a distance needs: the model's ``valid`` output, or
+RTSS's) follow one convention in every file, whichever method made them (:data:`INVALID`):
+NaN in ``distance.npy``, False / 0 in ``valid.npy`` / ``valid.png``, black in the colour maps,
+absent from ``points.ply``, and counted in ``prediction.json``. The in-memory result of
+:func:`predict` keeps the network's raw values there, marked only by ``valid``.
 """
 
 from __future__ import annotations
@@ -23,17 +29,17 @@ from flax import nnx
 
 from gijax.geometry.panorama import Panorama, ray_grid
 from gijax.geometry.rig import Rig, project_rig_points, scale_rig
-from gijax.model import OmniStereoNet, check_candidates
+from gijax.model import OmniStereoNet, check_candidates, forward, make_grids
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
-from gijax.sweep.surrogate import as_float_image, check_images, surrogate_images
+from gijax.sweep.surrogate import as_float_image, check_images
 
 Array = jax.Array
 
 
 @nnx.jit
-def _forward(model: OmniStereoNet, surrogates, masks, rig, candidates):
-    return model(surrogates, masks, rig, candidates)
+def _forward(model: OmniStereoNet, images, masks, rig, candidates):
+    return forward(model, images, masks, make_grids(rig, candidates, model.config))
 
 
 @jax.jit
@@ -128,15 +134,14 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> dict:
             masks = _resize(masks.astype(np.float32), run_rig, cv2.INTER_AREA)
     check_images(run_rig, images, masks)
     images = as_float_image(images)
-    pano = Panorama.hemisphere(*config.surrogate_hw)
-    sur, sur_masks = surrogate_images(run_rig, images,
-                                      None if masks is None else jnp.asarray(masks, jnp.float32),
-                                      pano)
+    if masks is None:
+        masks = np.stack([np.ones((c.height, c.width), np.float32) if m is None else np.asarray(m)
+                          for c, m in zip(run_rig.cameras, run_rig.masks)])
     graphdef, state = nnx.split(model)
     view = nnx.merge(graphdef, state)
     view.eval()
     cand = jnp.asarray(candidates, jnp.float32)
-    out = _forward(view, sur[None], sur_masks[None], run_rig, cand)
+    out = _forward(view, images[None], jnp.asarray(masks, jnp.float32)[None], run_rig, cand)
     result = {k: np.asarray(v[0]) for k, v in out.items()}
     colour_rig = run_rig if masks is None else run_rig.replace(
         masks=tuple(jnp.asarray(m, jnp.float32) for m in masks))
@@ -145,11 +150,39 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> dict:
     return result
 
 
+INVALID = ("invalid pixels (valid = False): NaN in distance.npy, 0 in valid.png and False in "
+           "valid.npy, black in inverse_distance.png and uncertainty.png, no point in "
+           "points.ply")
+
+
+def mark_invalid(result: dict) -> dict:
+    """``result`` with ``distance``, ``inv_distance`` and ``entropy`` NaN where ``valid`` is
+    False (the convention of every written file), whichever method produced it."""
+    valid = np.asarray(result["valid"], bool)
+    out = dict(result, valid=valid)
+    for key in ("distance", "inv_distance", "entropy"):
+        if key in result:
+            out[key] = np.where(valid, np.asarray(result[key], np.float32), np.nan).astype(
+                np.float32)
+    return out
+
+
 def _atomic_save_npy(path: Path, array: np.ndarray) -> None:
     fd, tmp = tempfile.mkstemp(suffix=".npy", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             np.save(f, array)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(suffix=path.suffix, dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -169,24 +202,33 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
                      max_point_distance: float | None = None) -> dict:
     """Write a :func:`predict` result to ``out_dir``; returns {kind: path}.
 
-    Files: ``distance.npy`` (H, W) float32 metres; ``inverse_distance.png`` (colour map of
-    1/d with a colour bar labelled in metres; black where ``valid`` is False);
-    ``uncertainty.png`` (entropy in nats, 0 .. log D); ``points.ply`` (binary, rig frame,
-    metres, coloured from the images; points beyond ``max_point_distance``, by default the
-    farthest candidate, are left out) and ``prediction.json`` (candidates, title, sizes).
+    Files: ``distance.npy`` (H, W) float32 metres; ``valid.npy`` (H, W) bool and ``valid.png``
+    (255 = valid, 0 = invalid); ``inverse_distance.png`` (colour map of 1/d with a colour bar
+    labelled in metres); ``uncertainty.png`` (entropy in nats, 0 .. log D); ``points.ply``
+    (binary, rig frame, metres, coloured from the images; points beyond
+    ``max_point_distance``, by default the farthest candidate, are left out) and
+    ``prediction.json`` (candidates, title, sizes, valid pixel count). Invalid pixels follow
+    :data:`INVALID` in every file.
     """
+    from gijax.io.paths import check_output_dir
     from gijax.viz.colormap import save_panorama_png  # matplotlib only where files are drawn
     from gijax.viz.pointcloud import panorama_points, write_ply
 
-    out = Path(out_dir)
+    out = check_output_dir(out_dir, "output folder")
     out.mkdir(parents=True, exist_ok=True)
     cand = np.asarray(result["candidates"], np.float64)
     d_min, d_max = float(cand[0]), float(cand[-1])
+    result = mark_invalid(result)
     distance = np.asarray(result["distance"], np.float32)
     valid = np.asarray(result["valid"], bool)
     paths = {}
     paths["distance"] = str(out / "distance.npy")
     _atomic_save_npy(Path(paths["distance"]), distance)
+    paths["valid"] = str(out / "valid.npy")
+    _atomic_save_npy(Path(paths["valid"]), valid)
+    paths["valid_png"] = str(out / "valid.png")
+    _atomic_write(Path(paths["valid_png"]), cv2.imencode(".png", valid.astype(np.uint8) * 255)[1]
+                  .tobytes())
     paths["inverse_distance_png"] = save_panorama_png(
         str(out / "inverse_distance.png"), result["inv_distance"], "distance (colour = 1/d)",
         1.0 / d_max, 1.0 / d_min, cmap="turbo", title=title, valid=valid,
@@ -201,7 +243,8 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     colours = np.clip(np.asarray(result["colour"])[keep] * 255.0 + 0.5, 0, 255).astype(np.uint8)
     paths["points"] = write_ply(str(out / "points.ply"), points, colours)
     meta = {"title": title, "candidates_m": cand.tolist(), "shape": list(distance.shape),
-            "valid_fraction": float(valid.mean()), "points": int(len(points))}
+            "valid_fraction": float(valid.mean()), "valid_pixels": int(valid.sum()),
+            "invalid_pixels": INVALID, "points": int(len(points))}
     fd, tmp = tempfile.mkstemp(suffix=".json", dir=out)
     with os.fdopen(fd, "w") as f:
         json.dump(meta, f, indent=2)

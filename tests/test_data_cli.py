@@ -73,11 +73,16 @@ def test_render_interrupted_then_resumed_is_identical(rig_file, tmp_path, monkey
     monkeypatch.setattr(gijax.render, "render_sample", dying)
     with pytest.raises(KeyboardInterrupt):
         main(_args(rig_file, out, 4))
-    assert len(DatasetReader(out)) == 2
+    with pytest.raises(ValueError, match=r"incomplete: 2 of the 4 samples"):
+        DatasetReader(out)
+    assert main(["data", "check", str(out), "--no-progress"]) == 1   # incomplete
+    with pytest.warns(UserWarning, match="2 of the 4"):
+        assert len(DatasetReader(out, allow_partial=True)) == 2
     monkeypatch.setattr(gijax.render, "render_sample", fake_render)
     assert main(_args(rig_file, out, 4)) == 0
     assert "resuming after 2 complete samples" in capsys.readouterr().out
     assert _tree(out) == _tree(ref)
+    assert main(["data", "check", str(out), "--no-progress"]) == 0
 
 
 def test_render_refuses_other_settings_and_bad_sizes(rig_file, tmp_path, monkeypatch, capsys):

@@ -39,10 +39,18 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from gijax.io.lock import FolderLockedError
+
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, FolderLockedError) as exc:
         print(f"gijax {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        # A path of the wrong kind or without permission, found by the operating system: one
+        # line naming the path, not a traceback.
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"gijax {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 1
 
 

@@ -11,33 +11,64 @@ from pathlib import Path
 import numpy as np
 
 METHODS = ("net", "rtss")
+# One line per --metrics choice, written beside the numbers (gijax.train.metrics has the
+# full definitions).
+METRIC_DEFINITIONS = {
+    "paper": ("the paper's: per-sample MAE / RMSE / bad rates over labels inside the candidate "
+              "range (excluded, not clamped, outside it), torchmetrics SSIM (11x11 Gaussian, "
+              "sigma 1.5, data range from the sample, reflect padding, 5-px border cropped) "
+              "against labels clamped to the range; means over samples"),
+    "gijax": ("gijax's: labels clamped to the candidate range, MAE / RMSE / bad rates pooled "
+              "over all usable pixels, SSIM with data range 1 and zero padding over the whole "
+              "image; SSIM averaged over samples"),
+}
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "eval", help="evaluate a trained run (or the RTSS baseline) on a dataset folder",
         description=(
-            "Evaluate a run folder on a dataset: MAE, RMSE and SSIM on inverse distance (1/m, "
-            "labels clamped to the candidate range), the bad-pixel rates > 0.1 and > 0.4 1/m, "
-            "time per sample and peak memory. --rig evaluates on another rig than the dataset's "
+            "Evaluate a run folder on a dataset: MAE, RMSE and SSIM on inverse distance (1/m), "
+            "the bad-pixel rates > 0.1 and > 0.4 1/m, time per sample and peak memory. "
+            "--metrics picks the definitions (see gijax.train.metrics): 'paper' (default) as "
+            "the paper's tables computed them, MAE / RMSE / bad rates per sample over labels "
+            "inside the candidate range (0.5-100 m; sky and nearer pixels left out) and "
+            "torchmetrics' SSIM (data range from the sample, reflect padding, 5-px border "
+            "cropped), averaged over samples; 'gijax' with labels clamped to the candidate "
+            "range (sky and near pixels scored), errors pooled over all pixels and SSIM with "
+            "data range 1 and zero padding. --rig evaluates on another rig than the dataset's "
             "(the paper's layout-change experiment) and --candidates picks the list: the "
-            "training list, rig-aware GI recomputed for the evaluation rig, EV, or a file."),
+            "training list, the paper's list recomputed for the evaluation rig ('spacing'), "
+            "gijax's rig-aware GI ('rig'), EV, or a file."),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--ckpt", required=True, help="run folder written by 'gijax train', or an inference bundle")
-    p.add_argument("--data", required=True, help="dataset folder")
+    p.add_argument("--data", required=True,
+                   help="dataset folder, gijax's layout or the release's (partition 'validate'; "
+                        "DIR@KEY reads partition KEY)")
     p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
     p.add_argument("--candidates", default="train",
-                   help="'train' (training list), 'rig' (rig-aware GI recomputed for the rig), "
-                        "'spacing' (closed-form GI at the rig's camera spacing), 'ev', or a "
-                        "JSON / text file of distances in metres")
+                   help="'train' (training list); 'spacing' (the paper's list for a new rig, "
+                        "Table II: closed-form GI with the rig's camera spacing as the "
+                        "baseline); 'rig' (gijax's extension: rig-aware GI, equal mean pixel "
+                        "steps over the panorama's rays and cameras; on the training rig it is "
+                        "close to EV, not to the released G16); 'ev'; or a JSON / text file of "
+                        "distances in metres")
     p.add_argument("--which", default="best", choices=["best", "latest"],
-                   help="checkpoint to load: best validated or newest periodic")
+                   help="checkpoint to load: best validated or newest periodic (an unreadable "
+                        "one is skipped with a warning; the run folder is only read)")
     p.add_argument("--method", default="net", choices=METHODS,
                    help="'net' (the trained network) or 'rtss' (the classical baseline with the "
                         "same candidates)")
     p.add_argument("--batch", type=int, default=1, help="samples per forward pass")
     p.add_argument("--limit", type=int, default=0, help="evaluate at most this many samples")
-    p.add_argument("--json", default=None, help="write the results to this JSON file")
+    p.add_argument("--metrics", default="paper", choices=("paper", "gijax"),
+                   help="metric definitions: 'paper' (as the paper's tables) or 'gijax' "
+                        "(clamped labels, pooled pixels, fixed-range SSIM; the validation "
+                        "metric of 'gijax train')")
+    p.add_argument("--json", default=None, help="write the results to this JSON file "
+                                                 "(records the metric definitions used)")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="evaluate on a dataset holding fewer samples than its manifest requests")
     p.set_defaults(func=run)
 
 
@@ -127,11 +158,15 @@ def run(args) -> int:
 
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1; found {args.batch}")
+    if args.json:
+        from gijax.io.paths import check_output_file
+
+        check_output_file(args.json, "--json")
     if is_bundle(args.ckpt):
         model, mc, train_cand = load_bundle(args.ckpt)
     else:
         model, mc, train_cand = load_for_inference(args.ckpt, args.which)
-    reader = open_dataset(args.data, "evaluation")
+    reader = open_dataset(args.data, "evaluation", args.allow_partial)
     if args.rig:
         from gijax.io.rigfile import load_rig
 
@@ -155,14 +190,18 @@ def run(args) -> int:
         t0 = time.perf_counter()
         inv = jax.block_until_ready(predict(batch, reader, indices))
         times.append((time.perf_counter() - t0) / len(indices))
-        sums = batch_sums(inv, jnp.asarray(batch["distance"]), jnp.asarray(batch["valid"]), jcand)
+        sums = batch_sums(inv, jnp.asarray(batch["distance"]), jnp.asarray(batch["valid"]), jcand,
+                          metric_set=args.metrics)
         parts.append(jax.tree.map(np.asarray, sums))
         seen += len(indices)
     if not parts:
         raise ValueError(f"evaluation data {args.data} yielded no samples")
-    metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+    metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
+                        args.metrics)
     result = {"run": str(args.ckpt), "data": str(args.data), "method": args.method,
-              "preset": mc.name, "rig": args.rig or "dataset", "candidates_spec": args.candidates,
+              "preset": mc.name, "rig": args.rig or "dataset", "metric_set": args.metrics,
+              "metric_definitions": METRIC_DEFINITIONS[args.metrics],
+              "candidates_spec": args.candidates,
               "candidates": [float(c) for c in cand], **metrics,
               "time_ms_per_sample": 1000.0 * float(np.mean(times)),
               "device": str(jax.local_devices()[0]), **peak_memory_mb()}
@@ -173,7 +212,8 @@ def run(args) -> int:
           f"{metrics['mae']:>9.4f}{metrics['rmse']:>9.4f}{metrics['ssim']:>8.4f}"
           f"{metrics['bad_0.1']:>8.4f}{metrics['bad_0.4']:>8.4f}"
           f"{result['time_ms_per_sample']:>9.1f}{mem:>9.0f}")
-    print(f"({metrics['samples']} samples; inverse distance in 1/m)", file=sys.stderr)
+    print(f"({metrics['samples']} samples; inverse distance in 1/m; {args.metrics} metrics: "
+          f"{METRIC_DEFINITIONS[args.metrics]})", file=sys.stderr)
     if args.json:
         from gijax.train.config import write_json_atomic
 

@@ -10,9 +10,14 @@ import numpy as np
 HELP = "estimate the distance panorama of one set of fisheye images"
 DESCRIPTION = """\
 Run a model on one image per camera and write, under --out: distance.npy (float32 metres,
-160 x 640 at paper size), inverse_distance.png (colour map with a colour bar in metres),
+160 x 640 at paper size), valid.npy / valid.png (per-pixel validity: True / 255 where a
+distance was estimated), inverse_distance.png (colour map with a colour bar in metres),
 uncertainty.png (entropy of the candidate distribution), points.ply (coloured point cloud in
 the rig frame) and prediction.json.
+
+Invalid pixels (seen by too few cameras, e.g. masked out), for every method: NaN in
+distance.npy, False / 0 in valid.npy / valid.png, black in both colour maps, no point in
+points.ply; prediction.json gives valid_fraction and valid_pixels.
 
 The model comes from a training run folder or an inference bundle (--ckpt), from an exported
 ONNX file run by onnxruntime (--backend onnx --onnx FILE), or, for trying the pipeline, from a
@@ -22,11 +27,12 @@ preset with random weights (--preset; the outputs are then labelled UNTRAINED).
 paper's 1x1 absolute-difference cost).
 
 Candidates: 'train' (default) uses the training list (from the run folder; for a preset, the
-preset's kind in closed form: EV or GI with the paper's baseline); 'rig' recomputes
-geometry-informed candidates for the given rig (rig-aware: equal mean pixel steps; same count,
-no retraining needed); 'spacing' is the closed-form GI list with the rig's camera spacing as
-the baseline; 'ev' evenly spaced; or a file with one distance in metres per line, or a JSON
-list.
+preset's kind in closed form: EV or GI with the paper's baseline); 'spacing' is the paper's
+list recomputed for the given rig (Table II): the closed-form GI list with the rig's camera
+spacing as the baseline (same count, no retraining needed); 'rig' is gijax's extension,
+rig-aware GI (equal mean pixel steps over the panorama's rays and the rig's cameras; on the
+training rig it is close to EV, not to the released G16); 'ev' evenly spaced; or a file with
+one distance in metres per line, or a JSON list.
 """
 
 
@@ -54,7 +60,7 @@ def register(subparsers) -> None:
     p.add_argument("--masks", nargs="+", metavar="MASK",
                    help="optional validity masks per camera (non-zero = valid); default: the "
                         "rig's own masks")
-    p.add_argument("--candidates", default="train", metavar="train|rig|spacing|ev|FILE",
+    p.add_argument("--candidates", default="train", metavar="train|spacing|rig|ev|FILE",
                    help="distance candidates (see above); default: train")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
@@ -102,8 +108,8 @@ def resolve_candidates(spec: str, config, rig, train_candidates) -> tuple[np.nda
 
     if spec in RECOMPUTED:
         c = recomputed_candidates(spec, n, rig, config.d_min, config.d_max)
-        label = {"rig": "rig-aware GI", "spacing": "GI at the rig's camera spacing",
-                 "ev": "EV"}[spec]
+        label = {"spacing": "the paper's GI at the rig's camera spacing",
+                 "rig": "rig-aware GI (gijax extension)", "ev": "EV"}[spec]
         return np.asarray(c, np.float64), label
     return read_candidates(spec), f"from {spec}"
 
@@ -128,8 +134,10 @@ def preset_config(spec: str):
 def run(args) -> int:
     from gijax.io.rigfile import load_rig
     from gijax.model import create_model
+    from gijax.io.paths import check_output_dir
     from gijax.predict import load_model, predict
 
+    check_output_dir(args.out)
     rig = load_rig(args.rig)
     if len(args.images) != rig.num_cameras:
         raise ValueError(f"rig {args.rig!r} has {rig.num_cameras} cameras but "
@@ -168,8 +176,10 @@ def _report(result: dict, rig, out: str, title: str) -> None:
 
     paths = write_prediction(result, rig, out, title=title)
     print(title)
-    print(f"distance {result['distance'].shape}: median {np.median(result['distance']):.3f} m, "
-          f"valid {result['valid'].mean() * 100:.1f} %")
+    valid = np.asarray(result["valid"], bool)
+    median = (f"median {np.median(np.asarray(result['distance'])[valid]):.3f} m" if valid.any()
+              else "no valid pixel")
+    print(f"distance {result['distance'].shape}: {median}, valid {valid.mean() * 100:.1f} %")
     for kind, path in paths.items():
         print(f"  {kind:22s} {path}")
 
@@ -209,8 +219,10 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     result = rtss_predict_sample(rig, sample, args.rtss_preset, candidates=candidates)
     valid = np.asarray(result["valid"], bool)
     result = {
-        "inv_distance": np.nan_to_num(result["inv_distance"], nan=0.0),
-        "distance": np.where(valid, result["distance"], np.inf).astype(np.float32),
+        # Invalid pixels are NaN here already; write_prediction applies the same convention
+        # to every method's result.
+        "inv_distance": np.asarray(result["inv_distance"], np.float32),
+        "distance": np.asarray(result["distance"], np.float32),
         "valid": valid,
         # The baseline has no candidate distribution; its uncertainty map is left at zero.
         "entropy": np.zeros(valid.shape, np.float32),

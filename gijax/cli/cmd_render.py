@@ -1,7 +1,9 @@
 """``gijax render``: generate a procedural multi-fisheye dataset in the dataset format.
 
 Sample i is rendered from seed ``sample_seed(seed, i)`` (recorded in the CSV). Writing is
-crash-safe and re-running the same command resumes after the last complete sample.
+crash-safe and re-running the same command resumes after the last complete sample. The
+requested count goes into the manifest first, so an interrupted dataset reads as incomplete,
+and the folder is locked while the command writes it.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from pathlib import Path
 from gijax.data.writer import DatasetWriter, sample_seed
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig, scale_rig
+from gijax.io.paths import check_output_dir
 from gijax.io.rigfile import load_rig
 
 STYLES = ("mixed", "indoor", "outdoor")
@@ -49,6 +52,9 @@ def run(args) -> int:
 
     from gijax.render import render_sample
 
+    if args.samples < 1:
+        raise ValueError(f"--samples must be >= 1; found {args.samples}")
+    check_output_dir(args.out)
     base = load_rig(args.rig)
     scale = _scale_for(base, args)
     rig = base if scale == 1.0 else scale_rig(base, scale)
@@ -58,19 +64,21 @@ def run(args) -> int:
     # so a later run may extend the dataset.
     generator = {"renderer": "gijax.render.render_sample", "seed": int(args.seed),
                  "style": args.style, "image_scale": scale}
-    writer = DatasetWriter(Path(args.out), rig, pano, trajectory_size=args.trajectory_size,
-                           generator=generator, durable=args.durable)
-    done = writer.num_committed
-    if done >= args.samples:
-        print(f"{args.out}: already holds {done} samples (asked for {args.samples}); nothing to do")
-        return 0
-    if done:
-        print(f"{args.out}: resuming after {done} complete samples")
-    with tqdm(total=args.samples, initial=done, unit="sample", desc="render") as bar:
-        for i in range(done, args.samples):
-            seed_i = sample_seed(args.seed, i)
-            writer.write(render_sample(rig, seed_i, pano=pano, style=args.style), seed=seed_i)
-            bar.update(1)
+    with DatasetWriter(Path(args.out), rig, pano, trajectory_size=args.trajectory_size,
+                       generator=generator, durable=args.durable) as writer:
+        done = writer.num_committed
+        writer.request(args.samples)
+        if done >= args.samples:
+            print(f"{args.out}: already holds {done} samples (asked for {args.samples}); "
+                  f"nothing to do")
+            return 0
+        if done:
+            print(f"{args.out}: resuming after {done} complete samples")
+        with tqdm(total=args.samples, initial=done, unit="sample", desc="render") as bar:
+            for i in range(done, args.samples):
+                seed_i = sample_seed(args.seed, i)
+                writer.write(render_sample(rig, seed_i, pano=pano, style=args.style), seed=seed_i)
+                bar.update(1)
     print(f"{args.out}: {args.samples} samples ({rig.num_cameras} cameras "
           f"{rig.cameras[0].width}x{rig.cameras[0].height}, panorama {w}x{h})")
     return 0
@@ -85,7 +93,12 @@ def register(subparsers) -> None:
             "(docs/data.md): per camera an RGB fisheye, its distance (float32 in a 4-channel "
             "PNG) and validity mask, plus the ground-truth panorama distance. Writing is "
             "crash-safe; re-running the same command resumes after the last complete sample "
-            "and yields the same data as an uninterrupted run."),
+            "and yields the same data as an uninterrupted run. The manifest records the "
+            "requested count before any sample, so readers know an interrupted dataset is "
+            "incomplete ('gijax data check' reports it; train and eval refuse it without "
+            "--allow-partial); re-running with --samples equal to what it holds accepts it as "
+            "it is. One writer at a time: a second command writing the same folder fails "
+            "naming the first one's PID."),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--rig", required=True,
                    help="built-in rig name (paper-train, paper-test1, paper-test2, paper-test3) "

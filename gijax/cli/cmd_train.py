@@ -15,12 +15,18 @@ def register(subparsers) -> None:
             "config.json, checkpoints/ (newest --keep), best/ (best validation MAE), "
             "metrics.jsonl, TensorBoard event files in tb/ and sample predictions in samples/. "
             "Running the same command again resumes from the newest readable checkpoint, with "
-            "the same data order. Batches are split over all devices (data parallel); for "
-            "several hosts start one process per host with --coordinator, --num-processes and "
-            "--process-id."),
+            "the same data order; metrics.jsonl and the TensorBoard files then hold each step "
+            "once. Before training, every file of the datasets is checked ('gijax data check'; "
+            "--no-data-check skips it) and incomplete datasets are refused (--allow-partial "
+            "accepts them). The run folder is locked while training: a second 'gijax train' "
+            "on it fails naming the first one's PID. Batches are split over all devices (data "
+            "parallel); for several hosts start one process per host with --coordinator, "
+            "--num-processes and --process-id."),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--preset", required=True, help="network preset, e.g. G16VV-cpu or G16VV")
-    p.add_argument("--data", required=True, help="training dataset folder")
+    p.add_argument("--data", required=True,
+                   help="training dataset folder, gijax's layout or the release's (partition "
+                        "'train'; DIR@KEY reads partition KEY)")
     p.add_argument("--val", help="validation dataset folder (optional)")
     p.add_argument("--out", required=True, help="run folder")
     p.add_argument("--steps", type=int, default=1000, help="optimiser steps in total")
@@ -49,6 +55,11 @@ def register(subparsers) -> None:
                    help="replace a network configuration field of the preset (JSON value), "
                         "e.g. --override 'cost_hw=[8,32]'; repeatable")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-data-check", action="store_true",
+                   help="skip reading every dataset file before training (damaged files are "
+                        "then found when the loader reaches them)")
+    p.add_argument("--allow-partial", action="store_true",
+                   help="train on datasets holding fewer samples than their manifest requests")
     p.set_defaults(func=run)
 
 
@@ -88,9 +99,21 @@ def parse_overrides(items) -> dict:
     return out
 
 
+def check_data(reader, what: str, args) -> None:
+    """Read every file of a gijax-layout dataset before training (``--no-data-check`` skips)."""
+    from gijax.data import DatasetReader
+
+    if not args.no_data_check and isinstance(reader, DatasetReader):
+        from gijax.cli.cmd_data import require_clean
+
+        require_clean(reader.root, what, args.allow_partial, not args.no_progress)
+
+
 def run(args) -> int:
+    from gijax.io.paths import check_output_dir
     from gijax.train.trainer import init_distributed
 
+    check_output_dir(args.out)
     init_distributed(args.coordinator, args.num_processes, args.process_id)
     from gijax.train.config import TrainConfig
     from gijax.train.sources import (dataset_stream_factory, open_dataset, validation_batches)
@@ -104,7 +127,8 @@ def run(args) -> int:
         keep_best=bool(args.val), workers=args.workers,
         candidates=read_candidate_file(args.candidates) if args.candidates else None)
     mc = cfg.model_config()
-    reader = open_dataset(args.data, "training")
+    reader = open_dataset(args.data, "training", args.allow_partial)
+    check_data(reader, "training", args)
     if args.rig:
         from gijax.io.rigfile import load_rig
 
@@ -116,7 +140,8 @@ def run(args) -> int:
                                          workers=cfg.workers)
     make_val, val_rig = None, None
     if args.val:
-        val_reader = open_dataset(args.val, "validation")
+        val_reader = open_dataset(args.val, "validation", args.allow_partial)
+        check_data(val_reader, "validation", args)
         make_val = lambda: validation_batches(val_reader, val_reader.rig, cfg.batch_size,  # noqa: E731
                                               mc.surrogate_hw, cfg.val_batches)
         val_rig = val_reader.rig

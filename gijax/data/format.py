@@ -303,8 +303,12 @@ def file_list_bytes(names, rows: list[dict[str, str]]) -> bytes:
     return buf.getvalue().encode("utf-8")
 
 
-def manifest_doc(trajectories: list[str], trajectory_size: int, generator: dict | None) -> dict:
-    return {
+def manifest_doc(trajectories: list[str], trajectory_size: int, generator: dict | None,
+                 requested: int | None = None) -> dict:
+    """``requested``: the sample count the dataset was asked to hold (recorded before the
+    first of them is written, so an interrupted writer leaves a dataset that knows it is
+    incomplete); None when unknown."""
+    doc = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
         "metadata": METADATA,
@@ -314,6 +318,20 @@ def manifest_doc(trajectories: list[str], trajectory_size: int, generator: dict 
         "trajectories": [{"name": t, "file_list": f"{t}/{FILE_LIST}"} for t in trajectories],
         "generator": generator,
     }
+    if requested is not None:
+        doc["requested_samples"] = int(requested)
+    return doc
+
+
+def requested_samples(manifest: dict, path) -> int | None:
+    """The manifest's ``requested_samples`` (None when absent), checked."""
+    value = manifest.get("requested_samples")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"{path}: field 'requested_samples' must be a count >= 0; found "
+                         f"{value!r}")
+    return value
 
 
 def read_manifest(root: Path) -> dict:

@@ -16,6 +16,7 @@ the same folder, then ``os.replace`` renames it, so a file either exists complet
 from __future__ import annotations
 
 import os
+import zlib
 from pathlib import Path
 
 import cv2
@@ -73,6 +74,26 @@ def encode_mask(mask: np.ndarray) -> bytes:
     return _encode((np.asarray(mask) > 0).astype(np.uint8) * 255)
 
 
+def check_png_chunks(data: bytes) -> str | None:
+    """What is wrong with the chunk structure of PNG bytes (None when every chunk is whole and
+    its CRC matches). Checked before decoding: damaged bytes then give one clear error instead
+    of a stray line that libpng prints itself."""
+    view = memoryview(data)
+    pos, n = len(PNG_SIGNATURE), len(data)
+    while pos + 12 <= n:
+        length = int.from_bytes(view[pos:pos + 4], "big")
+        kind = bytes(view[pos + 4:pos + 8]).decode("latin-1")
+        end = pos + 12 + length
+        if end > n:
+            return f"chunk {kind!r} at byte {pos} runs past the end of the file"
+        if zlib.crc32(view[pos + 4:end - 4]) != int.from_bytes(view[end - 4:end], "big"):
+            return f"CRC mismatch in chunk {kind!r} at byte {pos} (damaged bytes)"
+        if kind == "IEND":
+            return None if end == n else f"{n - end} bytes after the PNG end chunk"
+        pos = end
+    return "no PNG end chunk"
+
+
 def read_png(path: str | os.PathLike, where: str = "") -> np.ndarray:
     """Decode a PNG file exactly as stored (uint8 or uint16, 1/3/4 channels).
 
@@ -90,6 +111,9 @@ def read_png(path: str | os.PathLike, where: str = "") -> np.ndarray:
         raise ValueError(f"{path} is not a PNG file (bad signature){suffix}")
     if not data.endswith(PNG_IEND):
         raise ValueError(f"{path} is truncated: {len(data)} bytes, no PNG end chunk{suffix}")
+    problem = check_png_chunks(data)
+    if problem is not None:
+        raise ValueError(f"{path} is a corrupt PNG: {problem}{suffix}")
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"{path} is a corrupt PNG (OpenCV cannot decode it){suffix}")

@@ -5,6 +5,9 @@ that point at it: a missing or malformed manifest, metadata or file list, a row 
 missing, a truncated or corrupt PNG, a wrong image size or channel count, non-finite distances.
 Bad rows are dropped only with ``skip_bad=True``; they are then counted in ``reader.skipped``
 and reported by :meth:`DatasetReader.report` (and a warning when the reader opens).
+
+A dataset whose manifest requests more samples than its file lists hold (its writer was
+interrupted, or is still writing) is refused unless ``allow_partial=True``, which warns instead.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import numpy as np
 
 from gijax.data import format as fmt
 from gijax.data import pngio
+from gijax.io.lock import describe_holder, holder_of
 
 VERIFY_MODES = ("none", "exists", "full")
 
@@ -41,6 +45,8 @@ class DatasetReader:
         ``"exists"`` (every file exists, the default) or ``"full"`` (every file decodes with
         the right size and channels and finite distances; slow on large data). Errors found
         later by ``__getitem__`` always raise.
+      allow_partial: accept a dataset holding fewer samples than its manifest requests (with
+        a warning) instead of raising ValueError.
 
     ``reader[i]`` returns a dict: ``images`` uint8 (N, h, w, 3) RGB, ``distances`` float32
     (N, h, w) metres, ``masks`` uint8 (N, h, w) 1 = valid, ``pano_distance`` float32 (H, W)
@@ -48,7 +54,8 @@ class DatasetReader:
     Cameras of different sizes come back as lists instead of stacked arrays.
     """
 
-    def __init__(self, root, skip_bad: bool = False, verify: str = "exists"):
+    def __init__(self, root, skip_bad: bool = False, verify: str = "exists",
+                 allow_partial: bool = False):
         if verify not in VERIFY_MODES:
             raise ValueError(f"verify must be one of {VERIFY_MODES}; found {verify!r}")
         self.root = Path(root)
@@ -72,6 +79,18 @@ class DatasetReader:
             csv_path = self.root / t["file_list"]
             for row in fmt.read_file_list(csv_path, self.names):
                 self._rows.append((t["name"], csv_path, row))
+        self.requested = fmt.requested_samples(self.manifest, self.root / fmt.MANIFEST)
+        self.complete = self.requested is None or len(self._rows) >= self.requested
+        if not self.complete:
+            writer = holder_of(self.root)
+            how = (f"it is being written now by {describe_holder(writer)}" if writer else
+                   "its writer stopped early: re-run the command that made it to finish it")
+            msg = (f"dataset {self.root} is incomplete: {len(self._rows)} of the "
+                   f"{self.requested} samples its manifest requests ({how}); to use it as it "
+                   f"is, pass --allow-partial (allow_partial=True)")
+            if not allow_partial:
+                raise ValueError(msg)
+            warnings.warn(msg, stacklevel=2)
         if verify != "none":
             kept = []
             for entry in self._rows:
@@ -99,6 +118,10 @@ class DatasetReader:
     def location(self, index: int) -> str:
         _, csv_path, row = self._rows[index]
         return f"{csv_path} line {row['_line']}"
+
+    def row_files(self, index: int) -> dict[str, Path]:
+        """Column -> file of sample ``index`` (as listed; the files are not opened)."""
+        return self._files(self._rows[index])
 
     def _files(self, entry) -> dict[str, Path]:
         traj, csv_path, row = entry

@@ -7,6 +7,11 @@ CSV row points at, which a later run overwrites. Opening an existing dataset che
 was made for the same rig, panorama and generator settings, and continues after its last
 committed sample; PNG encoding and JSON/CSV output are deterministic, so an interrupted and
 resumed run produces the same bytes as an uninterrupted one.
+
+A writer holds the folder's lock (:mod:`gijax.io.lock`) from opening to :meth:`close`, so a
+second writer of the same folder fails at once, naming the first one's PID. The manifest
+records how many samples were requested (:meth:`DatasetWriter.request`), so a dataset whose
+writer was interrupted reads as incomplete rather than as a smaller complete one.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import numpy as np
 from gijax.data import format as fmt
 from gijax.data import pngio
 from gijax.geometry.panorama import Panorama
+from gijax.io.lock import LOCK_FILE, FolderLock
 from gijax.io.rigfile import save_rig
 from gijax.geometry.rig import Rig
 
@@ -41,6 +47,10 @@ class DatasetWriter:
         seed and style); a resumed run must pass the same settings.
       distance_range: (d_min, d_max) metres recorded in the metadata.
       durable: fsync every file before its rename (survives power loss, not only crashes).
+
+    The writer locks ``root`` until :meth:`close` (or the end of a ``with`` block, or of the
+    process); opening a folder another process is writing raises
+    :class:`gijax.io.lock.FolderLockedError`.
     """
 
     def __init__(self, root, rig: Rig, pano: Panorama = Panorama.hemisphere(160, 640), *,
@@ -58,17 +68,34 @@ class DatasetWriter:
         self.generator = None if generator is None else _comparable(dict(generator))
         self.meta = fmt.metadata_doc(rig, pano, distance_range)
         self.graph = fmt.frame_graph_doc(rig)
-        if (self.root / fmt.MANIFEST).exists():
-            self._resume(trajectory_size)
-        else:
-            self.trajectory_size = int(trajectory_size)
-            self._create()
+        self.requested: int | None = None
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._lock = FolderLock(self.root, "dataset").acquire()
+        try:
+            if (self.root / fmt.MANIFEST).exists():
+                self._resume(trajectory_size)
+            else:
+                self.trajectory_size = int(trajectory_size)
+                self._create()
+        except BaseException:
+            self._lock.release()
+            raise
+
+    def close(self) -> None:
+        """Release the folder (the samples written are committed already)."""
+        self._lock.release()
+
+    def __enter__(self) -> "DatasetWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     # -- opening
 
     def _create(self) -> None:
         self.root.mkdir(parents=True, exist_ok=True)
-        if any(p.name != ".gitkeep" for p in self.root.iterdir()):
+        if any(p.name not in (".gitkeep", LOCK_FILE) for p in self.root.iterdir()):
             stray = sorted(p.name for p in self.root.iterdir())[:5]
             raise ValueError(f"{self.root} is not empty and has no {fmt.MANIFEST}; refusing to "
                              f"write a dataset there (found {stray})")
@@ -99,6 +126,7 @@ class DatasetWriter:
             raise ValueError(f"{path}: the dataset was made with generator settings {old_gen}, "
                              f"not {self.generator}; use the same settings or a new folder")
         self.trajectory_size = int(manifest.get("trajectory_size", trajectory_size))
+        self.requested = fmt.requested_samples(manifest, path)
         self.trajectories = [t["name"] for t in manifest["trajectories"]]
         for k, t in enumerate(self.trajectories):
             if t != fmt.trajectory_name(k):
@@ -129,7 +157,8 @@ class DatasetWriter:
         pngio.atomic_write_bytes(path, data, self.durable)
 
     def _write_manifest(self) -> None:
-        doc = fmt.manifest_doc(self.trajectories, self.trajectory_size, self.generator)
+        doc = fmt.manifest_doc(self.trajectories, self.trajectory_size, self.generator,
+                               self.requested)
         self._write(self.root / fmt.MANIFEST, fmt.dumps(doc))
 
     @property
@@ -138,6 +167,17 @@ class DatasetWriter:
         if not self.trajectories:
             return 0
         return (len(self.trajectories) - 1) * self.trajectory_size + len(self.rows)
+
+    def request(self, total: int) -> None:
+        """Record that the dataset is to hold ``total`` samples (at least those it holds), before
+        writing them: readers then know a dataset whose writer stopped early is incomplete.
+        Asking for what it already holds marks an interrupted dataset as complete as it is."""
+        if total < 0:
+            raise ValueError(f"requested sample count must be >= 0; found {total}")
+        total = max(int(total), self.num_committed)
+        if total != self.requested:
+            self.requested = total
+            self._write_manifest()
 
     def _check_sample(self, sample: Mapping) -> None:
         for key in ("images", "distances", "masks", "pano_distance"):
@@ -169,6 +209,8 @@ class DatasetWriter:
 
     def write(self, sample: Mapping, seed: int | None = None) -> int:
         """Write and commit one sample; returns its index. ``seed`` is recorded in the CSV."""
+        if not self._lock.held:
+            raise ValueError(f"dataset writer of {self.root} is closed")
         self._check_sample(sample)
         index = self.num_committed
         t, frame = divmod(index, self.trajectory_size)
@@ -213,28 +255,30 @@ def write_dataset(root, samples: Callable[[int], Mapping] | Iterable[Mapping], r
     ``progress(done, total)`` is called after each commit. Returns the number of samples written
     by this call.
     """
-    writer = DatasetWriter(root, rig, pano, **writer_kw)
-    start = writer.num_committed
-    written = 0
-    if callable(samples):
-        if num_samples is None:
-            raise ValueError("num_samples is required when samples is a function")
-        for i in range(start, num_samples):
-            writer.write(samples(i), None if seeds is None else seeds(i))
+    if callable(samples) and num_samples is None:
+        raise ValueError("num_samples is required when samples is a function")
+    with DatasetWriter(root, rig, pano, **writer_kw) as writer:
+        start = writer.num_committed
+        if num_samples is not None:
+            writer.request(num_samples)
+        written = 0
+        if callable(samples):
+            for i in range(start, num_samples):
+                writer.write(samples(i), None if seeds is None else seeds(i))
+                written += 1
+                if progress is not None:
+                    progress(i + 1, num_samples)
+            return written
+        for i, sample in enumerate(samples):
+            if num_samples is not None and i >= num_samples:
+                break
+            if i < start:
+                continue
+            writer.write(sample, None if seeds is None else seeds(i))
             written += 1
             if progress is not None:
-                progress(i + 1, num_samples)
+                progress(i + 1, num_samples or 0)
         return written
-    for i, sample in enumerate(samples):
-        if num_samples is not None and i >= num_samples:
-            break
-        if i < start:
-            continue
-        writer.write(sample, None if seeds is None else seeds(i))
-        written += 1
-        if progress is not None:
-            progress(i + 1, num_samples or 0)
-    return written
 
 
 def sample_seed(seed: int, index: int) -> int:

@@ -39,28 +39,32 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
     """Write ``model``'s variables, a copy of its run's ``config.json`` and the provenance.
 
     The folder is assembled under a temporary name and renamed into place, so an interrupted
-    call never leaves a bundle that looks complete.
+    call never leaves a bundle that looks complete. One writer at a time: the lock file sits
+    beside the bundle (``.NAME.gijax.lock``), since the bundle folder itself is replaced.
     """
     from flax import nnx
 
+    from gijax.io.lock import FolderLock
+    from gijax.io.paths import check_output_dir
     from gijax.train.config import CONFIG_FILE
 
-    out_dir = Path(out_dir)
+    out_dir = check_output_dir(out_dir, "bundle folder")
     weights = _flatten(nnx.to_pure_dict(nnx.state(model)))
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    os.chmod(tmp, 0o755)  # mkdtemp makes it private; a bundle is meant to be shared
-    try:
-        shutil.copyfile(config_file, tmp / CONFIG_FILE)
-        np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f" else v
-                                        for k, v in weights.items()})
-        (tmp / PROVENANCE_FILE).write_text(json.dumps(provenance or {}, indent=2) + "\n")
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        os.replace(tmp, out_dir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    with FolderLock(out_dir, "bundle", out_dir.parent / f".{out_dir.name}.gijax.lock"):
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+        os.chmod(tmp, 0o755)  # mkdtemp makes it private; a bundle is meant to be shared
+        try:
+            shutil.copyfile(config_file, tmp / CONFIG_FILE)
+            np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f"
+                                            else v for k, v in weights.items()})
+            (tmp / PROVENANCE_FILE).write_text(json.dumps(provenance or {}, indent=2) + "\n")
+            if out_dir.exists():
+                shutil.rmtree(out_dir)
+            os.replace(tmp, out_dir)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
     return out_dir
 
 

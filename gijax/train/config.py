@@ -126,15 +126,25 @@ def model_config_from_dict(d: dict) -> ModelConfig:
     return ModelConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
-def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
-    """Write JSON to a temporary name in the same folder, then rename over ``path``."""
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to a temporary name in the same folder, then rename over ``path``; the
+    temporary file is removed when that fails (e.g. ``path`` is a folder)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=2)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
+    """Write JSON to a temporary name in the same folder, then rename over ``path``."""
+    write_text_atomic(path, json.dumps(obj, indent=2))
 
 
 def save_run_config(run_dir: str | os.PathLike, config: TrainConfig, candidates, rig_name: str = "") -> None:

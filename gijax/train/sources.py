@@ -83,14 +83,30 @@ def array_stream_factory(arrays: dict, batch_size: int, seed: int = 0) -> Callab
     return make
 
 
-def open_dataset(path: str | Path, what: str = "training"):
-    """A :class:`gijax.data.DatasetReader` with clear errors for a missing or empty folder."""
-    from gijax.data import DatasetReader
+def open_dataset(path: str | Path, what: str = "training", allow_partial: bool = False):
+    """A dataset reader with clear errors for a missing or empty folder (and, for gijax's
+    layout, for an incomplete one unless ``allow_partial``).
 
-    path = Path(path)
+    The layout is detected from the folder's files
+    (:func:`gijax.data.release_layout.detect_layout`): gijax's own
+    (:class:`gijax.data.DatasetReader`) or the paper's released layout
+    (:class:`gijax.data.release_layout.ReleaseDatasetReader`). For the release layout the
+    data_partitions.json partition is ``train`` for training and ``validate`` otherwise, as in
+    the release; ``DIR@KEY`` selects partition ``KEY`` instead.
+    """
+    from gijax.data.release_layout import detect_layout, open_reader
+
+    text = str(path)
+    split = "train" if what == "training" else "validate"
+    path = Path(text)
+    if not path.exists() and "@" in text:
+        head, _, key = text.rpartition("@")
+        if Path(head).is_dir() and key:
+            path, split = Path(head), key
     if not path.exists():
         raise FileNotFoundError(f"{what} data folder {path} does not exist")
-    reader = DatasetReader(path)
+    kw = {"allow_partial": allow_partial} if detect_layout(path) == "gijax" else {}
+    reader = open_reader(path, split=split, **kw)
     if len(reader) == 0:
         raise ValueError(f"{what} data folder {path} has no samples")
     return reader

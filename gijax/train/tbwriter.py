@@ -101,6 +101,72 @@ def image_value(tag: str, png: bytes, height: int, width: int, channels: int = 3
     return _bytes_field(1, _bytes_field(1, tag.encode()) + _bytes_field(4, img))
 
 
+def _read_varint(data: bytes, pos: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        if pos >= len(data):
+            raise ValueError("truncated varint")
+        b = data[pos]
+        value |= (b & 0x7F) << shift
+        pos += 1
+        if not b & 0x80:
+            return value, pos
+        shift += 7
+
+
+def event_step(event: bytes) -> int:
+    """The ``step`` field (2) of a serialised Event (0 when absent, as protobuf defines)."""
+    pos = 0
+    while pos < len(event):
+        key, pos = _read_varint(event, pos)
+        field, wire = key >> 3, key & 7
+        if wire == 0:
+            value, pos = _read_varint(event, pos)
+            if field == 2:
+                return value - (1 << 64) if value >= 1 << 63 else value
+        elif wire == 1:
+            pos += 8
+        elif wire == 5:
+            pos += 4
+        elif wire == 2:
+            length, pos = _read_varint(event, pos)
+            pos += length
+        else:
+            raise ValueError(f"unsupported protobuf wire type {wire}")
+    return 0
+
+
+def read_records(data: bytes) -> list[bytes]:
+    """The payloads of the complete, intact TFRecord frames at the start of ``data`` (reading
+    stops at a frame cut short or damaged, e.g. by a kill in the middle of a write)."""
+    out, pos = [], 0
+    while pos + 12 <= len(data):
+        header = data[pos:pos + 8]
+        (length,) = struct.unpack("<Q", header)
+        end = pos + 12 + length + 4
+        if end > len(data) or struct.unpack("<I", data[pos + 8:pos + 12])[0] != masked_crc(header):
+            break
+        payload = data[pos + 12:pos + 12 + length]
+        if struct.unpack("<I", data[end - 4:end])[0] != masked_crc(payload):
+            break
+        out.append(payload)
+        pos = end
+    return out
+
+
+def drop_events_after(path: str | os.PathLike, step: int) -> None:
+    """Rewrite an event file without its events of steps after ``step`` (atomically)."""
+    path = Path(path)
+    data = path.read_bytes()
+    records = read_records(data)
+    kept = [r for r in records if event_step(r) <= step]
+    if len(kept) == len(records) and sum(len(r) + 16 for r in records) == len(data):
+        return
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_bytes(b"".join(tfrecord(r) for r in kept))
+    os.replace(tmp, path)
+
+
 class EventWriter:
     """Appends scalars and images to ``LOGDIR/events.out.tfevents.<time>.<host>``."""
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Callable, Iterable, Optional
@@ -21,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gijax.geometry.rig import Rig
+from gijax.io.lock import FolderLock
 from gijax.train import step as S
 from gijax.train.checkpoints import CheckpointStore
 from gijax.train.config import CONFIG_FILE, TrainConfig, load_run_config, save_run_config
@@ -67,7 +69,8 @@ def training_candidates(config: TrainConfig, rig: Optional[Rig]) -> np.ndarray:
         raise ValueError(f"preset {config.preset!r} needs {mc.num_candidates} candidates; "
                          f"found {cand.shape[0] if cand.ndim == 1 else cand.shape}")
     if not np.all(np.diff(cand) > 0) or cand[0] <= 0:
-        raise ValueError(f"candidates must be positive and strictly ascending metres; found {cand}")
+        raise ValueError(f"candidates must be positive and strictly ascending metres; found "
+                         f"{cand.tolist()}")
     return cand
 
 
@@ -116,33 +119,48 @@ class Trainer:
         if config.batch_size % jax.process_count():
             raise ValueError(f"batch size {config.batch_size} cannot be split over "
                              f"{jax.process_count()} processes")
+        # A bad candidate list is found before the run folder exists, so it leaves none behind.
+        if not (self.run_dir / CONFIG_FILE).exists():
+            training_candidates(config, rig)
+        fresh = not self.run_dir.exists()
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        self.candidates = self._resolve_candidates(rig, rig_name)
+        # One writer per run folder; process 0 holds the lock for the processes of its run.
+        self._lock = FolderLock(self.run_dir, "run folder") if self.is_main else None
+        if self._lock is not None:
+            self._lock.acquire()
+        try:
+            self.candidates = self._resolve_candidates(rig, rig_name)
 
-        model = create_model(self.mc, config.seed)
-        self.train_def, self.eval_def, params, rest = S.split_model(model)
-        self.tx = S.make_optimizer(config)
-        self.lr_fn = S.learning_rate_schedule(config)
-        state = S.init_state(params, rest, self.tx)
-        self.store = CheckpointStore(self.run_dir, config.keep,
-                                     config.best_metric if config.keep_best else None,
-                                     config.best_mode)
-        abstract = S.abstract_like(state, S.replicated(self.mesh))
-        restored = self.store.restore_latest(abstract, self._check_meta)
-        if restored is None:
-            self.state = S.place_state(state, self.mesh)
-            self.start_step, self.stream_state = 0, None
-        else:
-            self.state, meta = restored
-            self.start_step, self.stream_state = int(meta["step"]), meta.get("stream")
-        self._step = S.jit_train_step(
-            S.build_train_step(self.train_def, self.tx, self.mc.loss, config.grad_accum,
-                               config.bf16), self.mesh)
-        self._eval = jax.jit(S.build_eval_forward(self.eval_def))
-        self._cand = jnp.asarray(self.candidates, jnp.float32)
-        self.history: list[dict] = []
-        self._tb = None
-        self._stream = None
+            model = create_model(self.mc, config.seed)
+            self.train_def, self.eval_def, params, rest = S.split_model(model)
+            self.tx = S.make_optimizer(config)
+            self.lr_fn = S.learning_rate_schedule(config)
+            state = S.init_state(params, rest, self.tx)
+            self.store = CheckpointStore(self.run_dir, config.keep,
+                                         config.best_metric if config.keep_best else None,
+                                         config.best_mode)
+            abstract = S.abstract_like(state, S.replicated(self.mesh))
+            restored = self.store.restore_latest(abstract, self._check_meta)
+            if restored is None:
+                self.state = S.place_state(state, self.mesh)
+                self.start_step, self.stream_state = 0, None
+            else:
+                self.state, meta = restored
+                self.start_step, self.stream_state = int(meta["step"]), meta.get("stream")
+            self._step = S.jit_train_step(
+                S.build_train_step(self.train_def, self.tx, self.mc.loss, config.grad_accum,
+                                   config.bf16), self.mesh)
+            self._eval = jax.jit(S.build_eval_forward(self.eval_def))
+            self._cand = jnp.asarray(self.candidates, jnp.float32)
+            self.history: list[dict] = []
+            self._tb = None
+            self._stream = None
+        except BaseException:
+            if self._lock is not None:
+                self._lock.release()
+            if fresh and self.is_main:       # nothing was trained: leave no folder behind
+                shutil.rmtree(self.run_dir, ignore_errors=True)
+            raise
 
     # ----------------------------------------------------------------- run folder checks
     def _resolve_candidates(self, rig: Rig, rig_name: str) -> np.ndarray:
@@ -263,6 +281,10 @@ class Trainer:
             self._stream = self.make_train_stream(self.stream_state)
         stream = self._stream
         step = self.start_step
+        if self.is_main:
+            # A killed run may have logged steps after its last checkpoint (or before its
+            # first one); they are computed and logged again from here.
+            drop_logs_after(self.run_dir, step)
         if step > 0:
             self._log({"step": step, "event": "resumed"})
         bar = None
@@ -315,6 +337,34 @@ class Trainer:
             getattr(self._stream, "close", lambda: None)()
             self._stream = None
         self.store.close()
+        if self._lock is not None:
+            self._lock.release()
+
+
+def drop_logs_after(run_dir, step: int) -> None:
+    """Remove what ``metrics.jsonl`` and the TensorBoard files hold for steps after ``step``.
+
+    A run killed between two checkpoints has logged steps that its resumed run computes (and
+    logs) again from the last checkpoint; dropping them first keeps one record per step, so
+    readers need no de-duplication. A line or event cut short by the kill goes too.
+    """
+    from gijax.train.config import write_text_atomic
+    from gijax.train.tbwriter import drop_events_after
+
+    run_dir = Path(run_dir)
+    path = run_dir / METRICS_FILE
+    if path.exists():
+        kept = []
+        for line in path.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(record, dict) and int(record.get("step", 0)) <= step:
+                kept.append(line)
+        write_text_atomic(path, "".join(line + "\n" for line in kept))
+    for events in sorted((run_dir / "tb").glob("events.out.tfevents.*")):
+        drop_events_after(events, step)
 
 
 # --------------------------------------------------------------------------- inference
@@ -338,9 +388,10 @@ def load_for_inference(run_dir, which: str = "best"):
     tx = S.make_optimizer(cfg)
     dev = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
     abstract = S.abstract_like(jax.eval_shape(lambda: S.init_state(params, rest, tx)), dev)
+    # Read-only: loading a model must not change the run folder (it may be training right now).
     store = CheckpointStore(run_dir, keep=max(cfg.keep, 1),
                             best_metric=cfg.best_metric if cfg.keep_best else None,
-                            best_mode=cfg.best_mode)
+                            best_mode=cfg.best_mode, read_only=True)
     try:
         out = None
         if which == "best" and store.best is not None and store.best.all_steps():
