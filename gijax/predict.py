@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -29,6 +28,7 @@ from flax import nnx
 
 from gijax.geometry.panorama import Panorama, ray_grid
 from gijax.geometry.rig import Rig, project_rig_points, scale_rig
+from gijax.io.paths import write_bytes_atomic
 from gijax.model import OmniStereoNet, check_candidates, forward, make_grids
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
@@ -168,25 +168,11 @@ def mark_invalid(result: dict) -> dict:
 
 
 def _atomic_save_npy(path: Path, array: np.ndarray) -> None:
-    fd, tmp = tempfile.mkstemp(suffix=".npy", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, array)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    import io
 
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(suffix=path.suffix, dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    buf = io.BytesIO()
+    np.save(buf, array)
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def _metre_ticks(d_min: float, d_max: float) -> dict:
@@ -227,8 +213,8 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     paths["valid"] = str(out / "valid.npy")
     _atomic_save_npy(Path(paths["valid"]), valid)
     paths["valid_png"] = str(out / "valid.png")
-    _atomic_write(Path(paths["valid_png"]), cv2.imencode(".png", valid.astype(np.uint8) * 255)[1]
-                  .tobytes())
+    write_bytes_atomic(Path(paths["valid_png"]),
+                       cv2.imencode(".png", valid.astype(np.uint8) * 255)[1].tobytes())
     paths["inverse_distance_png"] = save_panorama_png(
         str(out / "inverse_distance.png"), result["inv_distance"], "distance (colour = 1/d)",
         1.0 / d_max, 1.0 / d_min, cmap="turbo", title=title, valid=valid,
@@ -245,10 +231,7 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     meta = {"title": title, "candidates_m": cand.tolist(), "shape": list(distance.shape),
             "valid_fraction": float(valid.mean()), "valid_pixels": int(valid.sum()),
             "invalid_pixels": INVALID, "points": int(len(points))}
-    fd, tmp = tempfile.mkstemp(suffix=".json", dir=out)
-    with os.fdopen(fd, "w") as f:
-        json.dump(meta, f, indent=2)
-    os.replace(tmp, out / "prediction.json")
+    write_bytes_atomic(out / "prediction.json", json.dumps(meta, indent=2).encode())
     paths["meta"] = str(out / "prediction.json")
     return paths
 

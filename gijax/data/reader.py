@@ -34,7 +34,22 @@ class Skipped:
     reason: str
 
 
-class DatasetReader:
+class RowReader:
+    """Random access by sample index for a reader holding ``_rows`` (one per sample),
+    ``_load(row)`` and ``rig``: every dataset layout's reader shares it."""
+
+    def __getitem__(self, index: int) -> dict:
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"sample index {index} out of range for {n} samples")
+        index = index % n
+        sample = self._load(self._rows[index])
+        sample["rig"] = self.rig
+        sample["index"] = index
+        return sample
+
+
+class DatasetReader(RowReader):
     """Random access to a dataset's samples.
 
     Args:
@@ -164,12 +179,3 @@ class DatasetReader:
                 "pano_distance": pano, "trajectory": traj, "frame": int(row["frame"]),
                 "seed": int(row["seed"]) if row.get("seed") else None}
 
-    def __getitem__(self, index: int) -> dict:
-        n = len(self)
-        if not -n <= index < n:
-            raise IndexError(f"sample index {index} out of range for {n} samples")
-        index = index % n
-        sample = self._load(self._rows[index])
-        sample["rig"] = self.rig
-        sample["index"] = index
-        return sample

@@ -57,7 +57,7 @@ import numpy as np
 
 from gijax.data import format as fmt
 from gijax.data import pngio
-from gijax.data.reader import VERIFY_MODES, Skipped
+from gijax.data.reader import VERIFY_MODES, RowReader, Skipped
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import make_rig
@@ -497,7 +497,7 @@ def read_release_mask(path: Path, hw, where: str = "") -> np.ndarray:
 
 # ---------------------------------------------------------------------------- the reader
 
-class ReleaseDatasetReader:
+class ReleaseDatasetReader(RowReader):
     """Random access to the samples of one partition of a release-layout dataset.
 
     Args:
@@ -743,14 +743,4 @@ class ReleaseDatasetReader:
         if entry["dist"] is not None:
             sample["distances"] = stack([read_release_distance(p, hw, where)
                                          for p, hw in zip(entry["dist"], self.hw)])
-        return sample
-
-    def __getitem__(self, index: int) -> dict:
-        n = len(self)
-        if not -n <= index < n:
-            raise IndexError(f"sample index {index} out of range for {n} samples")
-        index = index % n
-        sample = self._load(self._rows[index])
-        sample["rig"] = self.rig
-        sample["index"] = index
         return sample

@@ -1,4 +1,5 @@
-"""Checks on output paths, so that a wrong kind of path fails with one clear line up front.
+"""Output paths: checks that make a wrong kind of path fail with one clear line up front, and
+the atomic write every output file goes through.
 
 A file where a folder is wanted (or the reverse) otherwise surfaces as an OSError from deep
 inside a writer, after the work that produced the output, and sometimes after temporary files
@@ -8,7 +9,24 @@ were made.
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` under a temporary name in ``path``'s folder, then rename it over ``path``:
+    a reader never sees a half-written file, and a failed write leaves no temporary behind."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.chmod(tmp, 0o644)  # mkstemp makes files private; outputs are meant to be read
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
 
 
 def _blocking_parent(path: Path) -> Path | None:
