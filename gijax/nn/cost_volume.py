@@ -39,13 +39,17 @@ def masked_variance(features: Array, valid: Array) -> Array:
     Divisions are by max(count, 1) and cells with fewer than 2 valid cameras are replaced by 0
     with a select, so values and gradients are finite everywhere.
     """
-    v = (valid > 0).astype(features.dtype)[..., None]  # (B, Ncam, D, h, w, 1)
-    # Reductions over the camera axis, not sums written out per camera: in one graph with the
-    # sweep, XLA's CPU backend fuses the unrolled form badly (about 4x slower at paper size).
-    count = jnp.sum(v, axis=1)
+    v = (valid > 0).astype(features.dtype)                 # (B, Ncam, D, h, w)
+    # The camera sums as contractions over the camera axis. On XLA's CPU backend this is the
+    # fastest form inside the whole forward (G16V-released at paper size: 1.62 s, against
+    # 1.83 s with jnp.sum and 6-7 s with the sums written out per camera, which XLA fuses
+    # badly with the sweep although that form is the fastest alone).
+    # Explicit indices: TensorRT's Einsum takes no ellipsis.
+    count = jnp.einsum("bndhw->bdhw", v)[..., None]
     safe = jnp.maximum(count, 1.0)
-    mean = jnp.sum(v * features, axis=1) / safe
-    var = jnp.sum(v * (features - mean[:, None]) ** 2, axis=1) / safe
+    mean = jnp.einsum("bndhwc,bndhw->bdhwc", features, v) / safe
+    dev = features - mean[:, None]
+    var = jnp.einsum("bndhwc,bndhw->bdhwc", dev * dev, v) / safe
     return jnp.where(count >= 2.0, var, 0.0)
 
 
