@@ -19,13 +19,9 @@ import time
 from pathlib import Path
 
 import jax
-from flax import nnx
 
-from gijax.bench.cases import _sweep
-from gijax.bench.rigs import network_inputs, network_rig
-from gijax.geometry.layouts import builtin_rig
-from gijax.model import create_model
-from gijax.nn import get_preset, regress
+from gijax.bench.cases import stage_programs
+from gijax.nn import get_preset
 
 # The second network: G16VV's structure (variance, in16/f96) with plain features.
 STRUCTURES = {
@@ -34,6 +30,10 @@ STRUCTURES = {
                                                features="plain"),
     "G16VV": lambda: get_preset("G16VV"),
 }
+
+
+STAGE_KEYS = {"features": "features", "sweep": "sweep", "cost volume": "cost_volume",
+              "U-Net": "unet", "regression": "regress"}
 
 
 def _cpu(cfg):
@@ -52,43 +52,16 @@ def timed(fn, args, reps: int) -> float:
 
 
 def measure(cfg, reps: int) -> dict:
-    rig = network_rig(builtin_rig("paper-train"), cfg)
-    model = create_model(cfg, seed=0)
-    model.eval()
-    graphdef, state = nnx.split(model)
-    sur, masks, cand = network_inputs(cfg, rig.num_cameras)
-    b, n, hs, ws, _ = sur.shape
-
-    def whole(state, sur, masks):
-        return nnx.merge(graphdef, state)(sur, masks, rig, cand)["inv_distance"]
-
-    def features(state, sur):
-        f = nnx.merge(graphdef, state).features(sur.reshape(b * n, hs, ws, 3))
-        return f.reshape(b, n, *f.shape[1:])
-
-    def sweep(state, feats):
-        return _sweep(cfg, feats, masks, rig, cand)
-
-    def cost(state, sampled, valid):
-        return nnx.merge(graphdef, state).cost_volume(sampled, valid.astype(sampled.dtype))
-
-    def unet(state, volume):
-        return nnx.merge(graphdef, state).unet(volume)
-
-    def regression(state, logits):
-        return regress(logits, cand, cfg.output_hw)["inv_distance"]
-
+    state, (sur, masks), whole, stages = stage_programs(cfg)
     row = {"preset": cfg.name, "surrogate": "x".join(map(str, cfg.surrogate_hw)),
            "whole_s": timed(jax.jit(whole), (state, sur, masks), reps)}
     x = (sur,)
-    for name, fn in (("features", features), ("sweep", sweep), ("cost_volume", cost),
-                     ("unet", unet), ("regress", regression)):
+    for name, fn in stages:
         jf = jax.jit(fn)
-        row[name + "_s"] = timed(jf, (state, *x), reps)
+        row[STAGE_KEYS[name] + "_s"] = timed(jf, (state, *x), reps)
         out = jf(state, *x)
         x = out if isinstance(out, tuple) else (out,)
-    row["sum_s"] = sum(row[k + "_s"] for k in ("features", "sweep", "cost_volume", "unet",
-                                                "regress"))
+    row["sum_s"] = sum(row[k + "_s"] for k in STAGE_KEYS.values())
     row["whole_over_sum"] = row["whole_s"] / row["sum_s"]
     return row
 

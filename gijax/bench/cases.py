@@ -179,20 +179,24 @@ def sweep(ctx: Context) -> dict:
     return {"rows": [row]}
 
 
-def stages(ctx: Context) -> dict:
-    """The forward pass cut into its stages (feature extractor, sweep, cost volume, U-Net,
-    regression), each compiled and timed alone with its FLOPs and bytes: where the time goes
-    and how far each stage is from the machine's limits."""
+def stage_programs(cfg: ModelConfig, seed: int = 0) -> tuple:
+    """A fresh eval-mode network of ``cfg`` on the 3-camera training rig, cut as its forward
+    runs: ``(state, surrogates, whole, stages)``. ``whole(state, surrogates, masks)`` is the
+    jittable forward (inverse distance); ``stages`` lists ``(name, fn)`` for the feature
+    extractor, sweep (grids from the rig included), cost volume, U-Net and regression, each
+    ``fn(state, *outputs of the previous stage)``."""
     from gijax.model import create_model
     from gijax.nn import regress
 
-    cfg = get_preset(ctx.settings.sweep_preset)
     rig = network_rig(builtin_rig("paper-train"), cfg)
-    model = create_model(cfg, seed=0)
+    model = create_model(cfg, seed=seed)
     model.eval()
     graphdef, state = nnx.split(model)
     sur, masks, cand = network_inputs(cfg, rig.num_cameras)
     b, n, hs, ws, _ = sur.shape
+
+    def whole(state, sur, masks):
+        return nnx.merge(graphdef, state)(sur, masks, rig, cand)["inv_distance"]
 
     def features(state, sur):
         feats = nnx.merge(graphdef, state).features(sur.reshape(b * n, hs, ws, 3))
@@ -208,11 +212,21 @@ def stages(ctx: Context) -> dict:
         return nnx.merge(graphdef, state).unet(volume)
 
     def regression(state, logits):
-        return regress(logits, cand, cfg.output_hw)
+        return regress(logits, cand, cfg.output_hw)["inv_distance"]
 
+    stages = [("features", features), ("sweep", sweep_stage), ("cost volume", cost_volume),
+              ("U-Net", unet), ("regression", regression)]
+    return state, (sur, masks), whole, stages
+
+
+def stages(ctx: Context) -> dict:
+    """The forward pass cut into its stages (feature extractor, sweep, cost volume, U-Net,
+    regression), each compiled and timed alone with its FLOPs and bytes: where the time goes
+    and how far each stage is from the machine's limits."""
+    cfg = get_preset(ctx.settings.sweep_preset)
+    state, (sur, _), _, stage_fns = stage_programs(cfg)
     rows, x = [], (sur,)
-    for name, fn in (("features", features), ("sweep", sweep_stage),
-                     ("cost volume", cost_volume), ("U-Net", unet), ("regression", regression)):
+    for name, fn in stage_fns:
         ctx.log(f"stage {cfg.name} {name} ...")
         args = (state, *x)
         row, compiled, _ = _measure_program(ctx, lambda fn=fn, args=args: (compile_fn(fn, *args),
