@@ -250,34 +250,42 @@ def trajectory_name(index: int) -> str:
     return f"traj_{index:04d}"
 
 
-def read_file_list(path: Path, names) -> list[dict[str, str]]:
-    """Parse a trajectory CSV; every row must have every required column filled.
-
-    ``<cam>_mask`` and ``seed`` columns are optional (data without per-frame masks use the
-    rig's masks). Errors name the file and the line.
-    """
+def csv_records(path: Path, required) -> list[tuple[int, dict[str, str]]]:
+    """``(line number, {column: field})`` for every non-empty row of the CSV file list
+    ``path``, whose header must hold every column in ``required``. Errors name the file and the
+    line: a missing file, no header, missing columns, a row with the wrong field count."""
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"missing file list {path}") from None
     reader = csv.reader(io.StringIO(text))
-    try:
-        header = next(reader)
-    except StopIteration:
-        raise ValueError(f"{path}: empty file list (no header row)") from None
-    required = ["frame"] + [f"{n}_{k}" for n in names for k in ("rgb", "distance")] + \
-        [f"{PANO_FRAME}_distance"]
+    header = next(reader, None)
+    if header is None:
+        raise ValueError(f"{path}: empty file list (no header row)")
     missing = [c for c in required if c not in header]
     if missing:
         raise ValueError(f"{path} line 1: header lacks column(s) {missing}; found {header}")
-    rows = []
+    records = []
     for line_no, fields in enumerate(reader, start=2):
         if not fields:
             continue
         if len(fields) != len(header):
             raise ValueError(f"{path} line {line_no}: expected {len(header)} fields, found "
                              f"{len(fields)}")
-        row = dict(zip(header, fields))
+        records.append((line_no, dict(zip(header, fields))))
+    return records
+
+
+def read_file_list(path: Path, names) -> list[dict[str, str]]:
+    """Parse a trajectory CSV; every row must have every required column filled.
+
+    ``<cam>_mask`` and ``seed`` columns are optional (data without per-frame masks use the
+    rig's masks). Errors name the file and the line.
+    """
+    required = ["frame"] + [f"{n}_{k}" for n in names for k in ("rgb", "distance")] + \
+        [f"{PANO_FRAME}_distance"]
+    rows = []
+    for line_no, row in csv_records(path, required):
         for c in required:
             if not row[c]:
                 raise ValueError(f"{path} line {line_no}: empty field {c!r}")

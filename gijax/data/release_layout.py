@@ -46,8 +46,6 @@ gijax from the first pixel's centre, so principal points lose 0.5 px on conversi
 from __future__ import annotations
 
 import collections
-import csv
-import io
 import math
 from pathlib import Path
 
@@ -666,30 +664,13 @@ class ReleaseDatasetReader(RowReader):
         return rows
 
     def _read_csv(self, path: Path, base: Path, trajectory: str) -> list[dict]:
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise FileNotFoundError(f"missing file list {path}") from None
-        reader = csv.reader(io.StringIO(text))
-        header = next(reader, None)
-        if header is None:
-            raise ValueError(f"{path}: empty file list (no header row)")
         rgb_cols = [f"{n}{self.rgb_suffix}" for n in self.names]
         label_col = f"{RIG_KEY}{self.dist_suffix}"
-        missing = [c for c in rgb_cols + [label_col] if c not in header]
-        if missing:
-            raise ValueError(f"{path} line 1: header lacks column(s) {missing}; found {header}")
+        records = fmt.csv_records(path, rgb_cols + [label_col])
         dist_cols = [f"{n}{self.dist_suffix}" for n in self.names]
-        has_dist = all(c in header for c in dist_cols)
+        has_dist = bool(records) and all(c in records[0][1] for c in dist_cols)
         out = []
-        for line, fields in enumerate(reader, start=2):
-            if not fields:
-                continue
-            if len(fields) != len(header):
-                raise ValueError(f"{path} line {line}: expected {len(header)} fields, found "
-                                 f"{len(fields)}")
-            row = dict(zip(header, fields))
-
+        for line, row in records:
             def file(col):
                 if not row[col]:
                     raise ValueError(f"{path} line {line}: empty field {col!r}")

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from gijax.export.graph import intrinsics_layout, rig_arrays, rig_from_arrays
+from gijax.export.graph import intrinsics_layout, rig_from_arrays
 from gijax.geometry.rig import Rig, scale_rig
 from gijax.model import OmniStereoNet, check_candidates, forward, make_grids
 from gijax.nn.layers import conv3d_mode

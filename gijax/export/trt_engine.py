@@ -17,7 +17,6 @@ deserialising, and reports a plan that the runtime refuses.
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import hashlib
-import json
 import os
 import tempfile
 import zipfile
@@ -109,7 +108,7 @@ def import_release_weights(src: str | os.PathLike, preset: str, out: str | os.Pa
     from gijax.train.config import TrainConfig, save_run_config
 
     src = Path(src)
-    base = get_preset(preset)
+    get_preset(preset)  # an unknown preset name fails here, naming the valid ones
     overrides = dict(overrides or {})
     unknown = set(overrides) - {f.name for f in dataclasses.fields(ModelConfig)}
     if unknown:
