@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gijax.candidates import rig_gi_candidates
-from gijax.candidates.rig_aware import DEFAULT_PANO, _rig_gi_jit, as_float_rig
+from gijax.candidates.rig_aware import DEFAULT_PANO, as_float_rig
 from gijax.geometry.layouts import builtin_rig
 
 
@@ -44,8 +44,7 @@ def main(argv=None) -> int:
     for name in ("paper-test2", "paper-test3"):
         rig = as_float_rig(builtin_rig(name))
         for n in (8, 16, 32):
-            solve = jax.jit(lambda r, n=n: _rig_gi_jit(r, 0.5, 100.0, None, n=n, pano=DEFAULT_PANO,
-                                                        measure="pixels", samples=4)[0])
+            solve = jax.jit(lambda r, n=n: rig_gi_candidates(r, n, 0.5, 100.0))
             t0 = time.perf_counter()
             jax.block_until_ready(solve(rig))
             compile_s = time.perf_counter() - t0

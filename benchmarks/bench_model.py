@@ -17,11 +17,9 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import platform
-import resource
 import statistics
 import sys
 import time
@@ -33,6 +31,8 @@ from flax import nnx
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
+from gijax.bench.cases.programs import structure  # noqa: E402
+from gijax.bench.memory import compiled_memory, host_peak_rss_mib, rss_bytes  # noqa: E402
 from gijax.geometry.layouts import builtin_rig  # noqa: E402
 from gijax.geometry.rig import scale_rig  # noqa: E402
 from gijax.model import create_model  # noqa: E402
@@ -41,15 +41,8 @@ from gijax.nn.presets import PRESETS  # noqa: E402
 PAPER_NAMES = ["E8", "G8", "E16", "G16", "G16V", "G16V-released", "G16VV"]
 
 
-def structure_key(cfg):
-    """Fields that change the computation (the candidate kind and the loss do not)."""
-    return dataclasses.replace(cfg, name="", candidates="gi", loss="volume",
-                               mask_augmentation=False)
-
-
 def rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    return rss_bytes() / 2**20
 
 
 def measure(cfg, rig_name: str, reps: int, warmup: int) -> dict:
@@ -72,11 +65,7 @@ def measure(cfg, rig_name: str, reps: int, warmup: int) -> dict:
     t0 = time.perf_counter()
     compiled = jax.jit(forward).lower(state, sur, masks, rig, cand).compile()
     compile_s = time.perf_counter() - t0
-    mem = compiled.memory_analysis()
-    xla_mb = None
-    if mem is not None:
-        xla_mb = (mem.argument_size_in_bytes + mem.output_size_in_bytes
-                  + mem.temp_size_in_bytes - mem.alias_size_in_bytes) / 2**20
+    mem = compiled_memory(compiled)
     rss0 = rss_mb()
     times = []
     for i in range(warmup + reps):
@@ -88,10 +77,10 @@ def measure(cfg, rig_name: str, reps: int, warmup: int) -> dict:
             rss_delta = rss_mb() - rss0
     return dict(cameras=n, compile_s=compile_s, median_ms=1e3 * statistics.median(times),
                 min_ms=1e3 * min(times),
-                times_ms=[1e3 * t for t in times], xla_peak_mb=xla_mb,
-                xla_temp_mb=None if mem is None else mem.temp_size_in_bytes / 2**20,
-                rss_delta_mb=rss_delta, peak_rss_mb=resource.getrusage(
-                    resource.RUSAGE_SELF).ru_maxrss / 1024)
+                times_ms=[1e3 * t for t in times],
+                xla_peak_mb=mem["peak_bytes"] / 2**20 if mem else None,
+                xla_temp_mb=mem["temp_bytes"] / 2**20 if mem else None,
+                rss_delta_mb=rss_delta, peak_rss_mb=host_peak_rss_mib())
 
 
 def main(argv=None) -> int:
@@ -113,7 +102,7 @@ def main(argv=None) -> int:
             jobs.append(("G16VV", "paper-test3"))
         for name, rig_name in jobs:
             cfg = PRESETS[name if size == "paper" else name + "-cpu"]
-            key = (structure_key(cfg), rig_name)
+            key = (structure(cfg), rig_name)
             if key not in done:
                 print(f"[{size}] {cfg.name} on {rig_name} ...", flush=True)
                 done[key] = (cfg.name, measure(cfg, rig_name, args.reps, args.warmup))

@@ -31,14 +31,16 @@ sys.path.insert(0, str(ROOT))
 
 
 def _setup(preset: str, workdir: str):
+    from gijax.candidates.spec import resolve_candidates
     from gijax.export.onnx_export import export_onnx, rendered_inputs
     from gijax.io.rigfile import load_rig
     from gijax.model import create_model
-    from gijax.cli.cmd_predict import resolve_candidates
 
     rig = load_rig("paper-train")
     model = create_model(preset, seed=0)
-    cand, _ = resolve_candidates("train", model.config, rig, None)
+    cfg = model.config
+    cand, _ = resolve_candidates("train", rig, cfg.num_candidates, cfg.d_min, cfg.d_max,
+                                 kind=cfg.candidates)
     path = os.path.join(workdir, f"{preset}.onnx")
     if not os.path.exists(path):
         export_onnx(model, rig, cand, path)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import sys
 import tempfile
 import time
@@ -22,8 +21,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from gijax.baseline.rtss import (RTSSConfig, _rtss, get_rtss_preset,  # noqa: E402
+from gijax.baseline.rtss import (RTSSConfig, get_rtss_preset, sphere_sweep,  # noqa: E402
                                  preset_candidates, rtss_predict_sample)
+from gijax.bench.memory import compiled_memory, host_peak_rss_mib  # noqa: E402
 from gijax.geometry.layouts import builtin_rig  # noqa: E402
 from gijax.geometry.panorama import Panorama  # noqa: E402
 from gijax.geometry.rig import scale_rig  # noqa: E402
@@ -51,7 +51,7 @@ def time_one(size: str, ncam: int, ncand: int, repeats: int) -> dict:
     cfg = RTSSConfig(match_size=match, filter_levels=5)
     args = (rig, images, _masks(rig), cands)
     t0 = time.perf_counter()
-    compiled = _rtss.lower(*args, pano, cfg).compile()
+    compiled = sphere_sweep.lower(*args, pano, cfg).compile()
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(compiled(*args))
     times = []
@@ -59,10 +59,8 @@ def time_one(size: str, ncam: int, ncand: int, repeats: int) -> dict:
         t0 = time.perf_counter()
         jax.block_until_ready(compiled(*args))
         times.append(time.perf_counter() - t0)
-    mem = compiled.memory_analysis()
-    peak = None
-    if mem is not None:
-        peak = (mem.temp_size_in_bytes + mem.argument_size_in_bytes + mem.output_size_in_bytes) / 2**20
+    mem = compiled_memory(compiled)
+    peak = mem["peak_bytes"] / 2**20 if mem else None
     return dict(size=size, cameras=ncam, candidates=ncand, image=cam.width, match=match,
                 pano=f"{ph}x{pw}", compile_s=compile_s, time_ms=1e3 * float(np.median(times)),
                 xla_peak_mib=peak)
@@ -116,7 +114,7 @@ def main(argv=None) -> int:
                       f"{r['match']:5d} {r['pano']:>7} {r['compile_s']:9.1f} {r['time_ms']:8.1f} "
                       f"{r['xla_peak_mib'] or float('nan'):8.1f}", flush=True)
     result = dict(device=str(jax.devices()[0]), timing=rows,
-                  max_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+                  max_rss_mib=host_peak_rss_mib())
     if a.eval:
         result["accuracy"] = evaluate(a.eval, a.eval_scale, (40, 160))
         print(f"\n{'rig':12} {'preset':7} {'MAE':>7} {'RMSE':>7} {'valid':>6}")

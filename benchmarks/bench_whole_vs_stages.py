@@ -20,7 +20,7 @@ from pathlib import Path
 
 import jax
 
-from gijax.bench.cases import stage_programs
+from gijax.bench.cases.programs import stage_programs
 from gijax.nn import get_preset
 
 # The second network: G16VV's structure (variance, in16/f96) with plain features.

@@ -22,7 +22,6 @@ Writes ``<out>.md``, ``<out>.json`` and ``<out>.png`` (default
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -34,7 +33,10 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.common import git_revision, machine  # noqa: E402
+from experiments.provenance import revision  # noqa: E402
+from experiments.reporting import save_png, write_json, write_text  # noqa: E402
+from gijax.bench.machine import machine_info  # noqa: E402
+from gijax.bench.report import markdown_grid  # noqa: E402
 
 SCALES = {
     # starts x steps of Adam, rendered validation samples, image scale, output panorama height
@@ -105,11 +107,8 @@ def plot_curves(results: dict, footprint: float, path: Path) -> None:
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110)
+    save_png(fig, path, dpi=110)
     plt.close(fig)
-    tmp.replace(path)
 
 
 def validate(layouts: dict, spec_of: dict, cfg: dict, ckpt: str | None, seed: int) -> list:
@@ -124,9 +123,9 @@ def validate(layouts: dict, spec_of: dict, cfg: dict, ckpt: str | None, seed: in
     model = None
     if ckpt:
         from gijax.predict import predict
-        from gijax.train.bundle import load_model
+        from gijax.store import load_model
 
-        model, mc, _ = load_model(ckpt)  # a run folder or an inference bundle
+        model, mc, _ = load_model(ckpt)  # a run folder, an inference bundle or a bundled name
         scale = mc.image_scale
         pano = Panorama.hemisphere(*mc.output_hw)  # labels at the network's output size
     else:
@@ -242,45 +241,40 @@ def main(argv=None) -> int:
         })
     meta = {"command": " ".join([Path(sys.argv[0]).name] + (argv or sys.argv[1:])),
             "scale": args.scale, "config": cfg, "seed": args.seed, "footprint": args.footprint,
-            "git_revision": git_revision(), "machine": machine(),
+            "git_revision": revision(), "machine": machine_info(),
             "durations_s": {k: round(v, 2) for k, v in durations.items()},
             "predictor": predictor}
     payload = {"meta": meta, "search": search_rows, "validation": val,
                "spearman_objective_vs_mae": rho}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".json.tmp")
-    tmp.write_text(json.dumps(payload, indent=1))
-    tmp.replace(out.with_suffix(".json"))
+    write_json(out.with_suffix(".json"), payload)
 
     md = [f"# Layout design ({args.scale})", "",
           f"Command `{meta['command']}`, seed {args.seed}, git {meta['git_revision'][:12]}, "
-          f"{meta['machine']['platform']}, {meta['machine']['cpus']} CPUs; total "
+          f"{meta['machine']['platform']}, {meta['machine']['cpu_count']} CPUs; total "
           f"{durations['total']:.0f} s.", "",
           "## Search at equal evaluations (penalised objective J, 1/m, lower is better)", "",
           "One evaluation = one objective value of one layout; an Adam step counts one "
           "evaluation per start (its value and gradient).", "",
-          "| cameras | evaluations | Adam | random | grid (lattice, evals) | paper-style | "
-          "ms/value | ms/grad step |",
-          "|---|---|---|---|---|---|---|---|"]
-    for r in search_rows:
-        md.append(f"| {r['cameras']} | {r['budget']} | {r['adam']:.5f} | {r['random']:.5f} | "
-                  f"{r['grid']:.5f} ({r['grid_lattice']}x{r['grid_lattice']}, "
-                  f"{r['grid_evaluations']}) | {r['paper_style']:.5f} | {r['ms_per_value']:.2f} |"
-                  f" {r['ms_per_gradient_step']:.2f} |")
-    md += ["", f"## Validation: {predictor}", "",
-           f"{cfg['samples']} rendered scene(s) per layout, images at scale "
-           f"{cfg['image_scale'] if not args.ckpt else 'of the model'}, panorama "
-           f"{val[0]['panorama'] if val else '-'}; candidates recomputed for each rig.", "",
-           "| layout | objective J | coverage | MAE (1/m) | valid | positions (m) |",
-           "|---|---|---|---|---|---|"]
-    for r in val:
-        md.append(f"| {r['layout']} | {r['objective']:.5f} | {r['hard_coverage']:.3f} | "
-                  f"{r['mae']:.4f} | {r['valid_fraction']:.2f} | {r['positions']} |")
-    md += ["", f"Spearman rank correlation of J and MAE across the {len(val)} layouts: "
-               f"{rho:.2f}.", ""]
-    tmp = out.with_name(out.name + ".md.tmp")
-    tmp.write_text("\n".join(md))
-    tmp.replace(out.with_suffix(".md"))
+          markdown_grid(["cameras", "evaluations", "Adam", "random", "grid (lattice, evals)",
+                         "paper-style", "ms/value", "ms/grad step"],
+                        [[str(r["cameras"]), str(r["budget"]), f"{r['adam']:.5f}",
+                          f"{r['random']:.5f}",
+                          f"{r['grid']:.5f} ({r['grid_lattice']}x{r['grid_lattice']}, "
+                          f"{r['grid_evaluations']})", f"{r['paper_style']:.5f}",
+                          f"{r['ms_per_value']:.2f}", f"{r['ms_per_gradient_step']:.2f}"]
+                         for r in search_rows]),
+          "", f"## Validation: {predictor}", "",
+          f"{cfg['samples']} rendered scene(s) per layout, images at scale "
+          f"{cfg['image_scale'] if not args.ckpt else 'of the model'}, panorama "
+          f"{val[0]['panorama'] if val else '-'}; candidates recomputed for each rig.", "",
+          markdown_grid(["layout", "objective J", "coverage", "MAE (1/m)", "valid",
+                         "positions (m)"],
+                        [[r["layout"], f"{r['objective']:.5f}", f"{r['hard_coverage']:.3f}",
+                          f"{r['mae']:.4f}", f"{r['valid_fraction']:.2f}", str(r["positions"])]
+                         for r in val]),
+          "", f"Spearman rank correlation of J and MAE across the {len(val)} layouts: "
+              f"{rho:.2f}.", ""]
+    write_text(out.with_suffix(".md"), "\n".join(md))
     print("\n".join(md))
     print(f"wrote {out.with_suffix('.md')}, {out.with_suffix('.json')}, {out.with_suffix('.png')}")
     return 0

@@ -33,8 +33,18 @@ from typing import Optional
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments import common as C  # noqa: E402
+from experiments.arguments import parse_script_args  # noqa: E402
+from experiments.claims import (claim_learned_beats_classical, claim_recomputed_candidates,
+                                claims_markdown, print_claims, row_label)  # noqa: E402
+from experiments.evaluation import (ROW_METRICS, cached_evaluation, net_predictor,
+                                    rtss_predictor)  # noqa: E402
+from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
+from experiments.reporting import (fmt, log, save_figure, save_table,
+                                   update_results_section)  # noqa: E402
+from experiments.scales import PAPER_MAE_NEW, Scale  # noqa: E402
+from experiments.workfolder import style_counts  # noqa: E402
 from experiments import same_layout as S  # noqa: E402
+from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "new_layout"
 LAYOUTS = ("paper-test2", "paper-test3")          # the paper's Table II; the claims use these
@@ -56,10 +66,10 @@ def unsupported(model_config, num_cameras: int) -> Optional[str]:
     return None
 
 
-def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tuple[list, dict]:
+def evaluate_rows(scale: Scale, work: Path, runs: dict, durations: dict) -> tuple[list, dict]:
     from gijax.baseline.rtss import get_rtss_preset
     from gijax.nn.presets import get_preset
-    from gijax.train.config import load_run_config
+    from gijax.store import read_run_config
 
     t0 = time.perf_counter()
     rows, preds = [], {}
@@ -68,17 +78,17 @@ def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tu
         n = scale.test_samples[layout]
         preds[layout] = {}
         for preset in scale.rtss_new:
-            C.log(f"  evaluating {preset} on {layout}")
-            res = C.cached_evaluation(
+            log(f"  evaluating {preset} on {layout}")
+            res = cached_evaluation(
                 work, {"method": preset, "data": layout, "samples": n, "scale": scale.name,
                        "pano": list(scale.pano_hw)},
-                lambda rig, p=preset: C.rtss_predictor(rig, p, scale.pano_hw), data)
+                lambda rig, p=preset: rtss_predictor(rig, p, scale.pano_hw), data)
             config = get_rtss_preset(preset)
             rows.append(_row(layout, preset, preset, "classical", "-", config.candidates, res,
                              num=config.num_candidates))
             preds[layout][preset] = res["first_prediction"]
         for model, run in runs.items():
-            _, mc, _ = load_run_config(Path(run["run"]))
+            mc = read_run_config(Path(run["run"])).model
             train_kind = get_preset(run["preset"]).candidates
             reason = unsupported(mc, CAMERAS[layout])
             if reason:
@@ -86,15 +96,15 @@ def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tu
                                  num=mc.num_candidates, note=reason))
                 continue
             for spec in EVAL_SPECS:
-                C.log(f"  evaluating {run['preset']} on {layout} with the "
+                log(f"  evaluating {run['preset']} on {layout} with the "
                       f"{EVAL_LABELS[spec]} candidates")
-                res = C.cached_evaluation(
+                res = cached_evaluation(
                     work, {"method": run["preset"], "train": run["command"], "data": layout,
                            "samples": n, "candidates": spec},
-                    lambda rig, r=run, c=spec: C.net_predictor(Path(r["run"]), rig, c), data)
+                    lambda rig, r=run, c=spec: net_predictor(Path(r["run"]), rig, c), data)
                 rows.append(_row(layout, model, run["preset"], "learned", train_kind, spec, res,
                                  num=mc.num_candidates))
-                preds[layout][C.row_label(rows[-1])] = res["first_prediction"]
+                preds[layout][row_label(rows[-1])] = res["first_prediction"]
     durations["evaluation"] = time.perf_counter() - t0
     return rows, preds
 
@@ -167,8 +177,8 @@ def rig_aware_summary(work: Path, layouts, n: int = 16) -> list:
 def rig_aware_markdown(summary: list) -> str:
     header = ["rig", "camera spacing (m)", "rig-aware effective baseline (m)",
               "max deviation from EV", "max deviation from the paper's list"]
-    return C.markdown_table(header, [[s["rig"], C.fmt(s["camera_spacing_m"], 3),
-                                      C.fmt(s["effective_baseline_m"], 3),
+    return markdown_grid(header, [[s["rig"], fmt(s["camera_spacing_m"], 3),
+                                      fmt(s["effective_baseline_m"], 3),
                                       f"{100 * s['max_rel_dev_from_ev']:.1f} %",
                                       f"{100 * s['max_rel_dev_from_paper']:.1f} %"]
                                      for s in summary])
@@ -177,17 +187,17 @@ def rig_aware_markdown(summary: list) -> str:
 def steps_markdown(steps: list) -> str:
     header = ["rig", "candidate list", "mean step (px)", "nearest step", "farthest step",
               "min/max", "per-ray cv"]
-    return C.markdown_table(header, [[s["rig"], s["list"], C.fmt(s["mean_px"], 2),
-                                      C.fmt(s["first_px"], 2), C.fmt(s["last_px"], 2),
-                                      C.fmt(s["min_max_ratio"], 3), C.fmt(s["ray_cv"], 3)]
+    return markdown_grid(header, [[s["rig"], s["list"], fmt(s["mean_px"], 2),
+                                      fmt(s["first_px"], 2), fmt(s["last_px"], 2),
+                                      fmt(s["min_max_ratio"], 3), fmt(s["ray_cv"], 3)]
                                      for s in steps])
 
 
 def _row(layout, model, preset, kind, train_cand, eval_cand, res, num, note="") -> dict:
-    keep = C.ROW_METRICS
+    keep = ROW_METRICS
     # The paper's 'new' list is the closed form at the camera spacing ('spacing'); the
     # rig-aware list is gijax's and has no paper figure.
-    paper = C.PAPER_MAE_NEW.get((layout, model, eval_cand))
+    paper = PAPER_MAE_NEW.get((layout, model, eval_cand))
     row = {"layout": layout, "cameras": CAMERAS[layout], "model": model, "preset": preset,
            "kind": kind, "num_candidates": num, "train_candidates": train_cand,
            "eval_candidates": eval_cand,
@@ -210,29 +220,29 @@ def table_markdown(rows: list) -> str:
                          "-", "-"])
             continue
         body.append([f"{r['layout']} ({r['cameras']} cam)", r["preset"],
-                     r["train_candidates"].upper(), eval_cand, C.fmt(r["mae"]), C.fmt(r["rmse"]),
-                     C.fmt(r["ssim"]), C.fmt(r.get("mae_gijax")), C.fmt(r["coverage"], 3),
-                     C.fmt(r["time_ms"], 1), C.fmt(r["peak_mb"], 1), C.fmt(r["paper_mae"], 3)])
-    return C.markdown_table(header, body)
+                     r["train_candidates"].upper(), eval_cand, fmt(r["mae"]), fmt(r["rmse"]),
+                     fmt(r["ssim"]), fmt(r.get("mae_gijax")), fmt(r["coverage"], 3),
+                     fmt(r["time_ms"], 1), fmt(r["peak_mb"], 1), fmt(r["paper_mae"], 3)])
+    return markdown_grid(header, body)
 
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    args, scale, work, out, results = C.parse_script_args(__doc__, NAME, argv)
+    args, scale, work, out, results = parse_script_args(__doc__, NAME, argv)
     started = time.time()
     durations = {}
 
     data = S.prepare(scale, work, list(LAYOUTS + DIAGNOSTIC), durations)
     runs = S.train_all(scale, work, args.seed, durations)
-    C.log(f"evaluating on {', '.join(LAYOUTS + DIAGNOSTIC)}")
+    log(f"evaluating on {', '.join(LAYOUTS + DIAGNOSTIC)}")
     rows, preds = evaluate_rows(scale, work, runs, durations)
     # The paper's Table II uses the 16-candidate models; 8-candidate rows are shown beside.
     sixteen = lambda r: r["num_candidates"] >= 16  # noqa: E731
     table = [r for r in rows if r["layout"] in LAYOUTS]
-    claims = [C.claim_recomputed_candidates(table, sixteen),
-              C.claim_recomputed_candidates(table, sixteen, new="rig"),
-              C.claim_learned_beats_classical(table, group=lambda r: r["layout"])]
-    C.print_claims(claims, scale)
+    claims = [claim_recomputed_candidates(table, sixteen),
+              claim_recomputed_candidates(table, sixteen, new="rig"),
+              claim_learned_beats_classical(table, group=lambda r: r["layout"])]
+    print_claims(claims, scale)
     steps = candidate_steps(rows, work)
     rig_aware = rig_aware_summary(work, ("paper-train",) + LAYOUTS + DIAGNOSTIC)
 
@@ -243,14 +253,15 @@ def main(argv=None) -> int:
     for layout in LAYOUTS + DIAGNOSTIC:
         path = out.with_name(f"{out.name}_{layout}.png")
         sample = DatasetReader(work / "data" / layout)[0]
-        C.save_figure(path, sample, list(preds[layout].items()),
+        save_figure(path, sample, list(preds[layout].items()),
                       f"{layout}, first held-out sample ({scale.name} scale): 'train' = "
                       f"training candidates, 'new' = the paper's list (closed-form GI at the "
                       f"rig's camera spacing), 'rig-aware' = gijax's rig-aware GI")
         figures[layout] = path
     durations["figure"] = time.perf_counter() - t0
-    prov = C.provenance("new_layout.py", argv, scale, args.seed, work, started, durations, data)
-    prov["test_styles"] = {t: C.style_counts(work / "data" / t) for t in LAYOUTS + DIAGNOSTIC}
+    prov = provenance_record("new_layout.py", argv, scale, args.seed, work, started, durations,
+                             data)
+    prov["test_styles"] = {t: style_counts(work / "data" / t) for t in LAYOUTS + DIAGNOSTIC}
     doc = {"table": "new_layout", "test_data": list(LAYOUTS), "diagnostic_data": list(DIAGNOSTIC),
            "rows": rows, "claims": claims,
            "candidate_steps": steps, "rig_aware_lists": rig_aware,
@@ -267,7 +278,7 @@ def main(argv=None) -> int:
         f"the test rig. MAE, RMSE and SSIM follow the paper's definitions (labels inside "
         f"0.5-100 m, per-sample means; `gijax eval --metrics paper`); 'MAE (gijax)' clamps "
         f"labels to the range and pools all pixels.",
-        table_markdown(table), "## Claims", C.claims_markdown(claims, scale),
+        table_markdown(table), "## Claims", claims_markdown(claims, scale),
         "## Diagnostic: a baseline change alone",
         f"`paper-train-1m` ({scale.test_samples['paper-train-1m']} held-out scenes): the "
         f"training triangle widened from 0.3095 m to 1 m with the reference point still at "
@@ -289,17 +300,17 @@ def main(argv=None) -> int:
         "list is close to EV, not to the released G16.",
         rig_aware_markdown(rig_aware),
         *[f"![{k}]({v.name})" for k, v in figures.items()],
-        "## Provenance", C.provenance_markdown(prov)])
-    C.save_table(out, "New camera layouts (Table II analogue)", md, doc)
-    C.log(f"wrote {out.with_suffix('.md')}, {out.with_suffix('.json')} and "
+        "## Provenance", provenance_markdown(prov)])
+    save_table(out, "New camera layouts (Table II analogue)", md, doc)
+    log(f"wrote {out.with_suffix('.md')}, {out.with_suffix('.json')} and "
           f"{', '.join(str(f) for f in figures.values())}")
     if results is not None:
         for v in figures.values():
             if v.resolve().is_relative_to(results.resolve().parent):
                 md = md.replace(f"]({v.name})",
                                 f"]({v.resolve().relative_to(results.resolve().parent)})")
-        C.update_results_section(results, NAME, md)
-        C.log(f"updated the {NAME} section of {results}")
+        update_results_section(results, NAME, md)
+        log(f"updated the {NAME} section of {results}")
     return 0
 
 

@@ -3,7 +3,7 @@
 Trains E8, G8, E16, G16, G16V and G16VV on ``paper-train`` scenes (the -cpu presets at
 ``--scale cpu``, shrunk ones at ``--scale smoke``, the paper's at ``--scale paper``) and
 evaluates them, with the classical RTSS baseline (RS-E16, RS-G16, RS-E32, RS-G32), on held-out
-``paper-test1`` scenes (new scene seeds; see ``experiments/common.py``). Columns: MAE, RMSE,
+``paper-test1`` scenes (new scene seeds; see ``experiments/scales.py``). Columns: MAE, RMSE,
 SSIM (inverse distance, 1/m), the share of pixels with an estimate, the median time of one
 sample from raw fisheye images (ms) and the XLA peak memory of that call (MB). MAE, RMSE and SSIM
 follow the paper's definitions (``gijax eval --metrics paper``: labels inside 0.5-100 m,
@@ -29,34 +29,45 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments import common as C  # noqa: E402
+from experiments.arguments import parse_script_args  # noqa: E402
+from experiments.claims import (claim_gi_at_least_ev, claim_learned_beats_classical,
+                                claims_markdown, print_claims)  # noqa: E402
+from experiments.evaluation import (ROW_METRICS, cached_evaluation, net_predictor,
+                                    rtss_predictor)  # noqa: E402
+from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
+from experiments.reporting import (fmt, log, save_figure, save_table,
+                                   update_results_section)  # noqa: E402
+from experiments.scales import PAPER_MAE_SAME, Scale  # noqa: E402
+from experiments.workfolder import (check_held_out, ensure_dataset, ensure_trained,
+                                    style_counts)  # noqa: E402
+from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "same_layout"
 TEST = "paper-test1"
 
 
-def prepare(scale: C.Scale, work: Path, tests: list, durations: dict) -> list:
+def prepare(scale: Scale, work: Path, tests: list, durations: dict) -> list:
     """Datasets (training, validation, ``tests``) and the trained models; dataset records."""
     t0 = time.perf_counter()
     roles = ["train"] + (["val"] if scale.val_samples else []) + list(tests)
-    C.log(f"datasets ({scale.name} scale) in {work / 'data'}")
-    data = [C.ensure_dataset(work, scale, role) for role in roles]
-    C.check_held_out(work, list(tests))
+    log(f"datasets ({scale.name} scale) in {work / 'data'}")
+    data = [ensure_dataset(work, scale, role) for role in roles]
+    check_held_out(work, list(tests))
     durations["data"] = time.perf_counter() - t0
     return data
 
 
-def train_all(scale: C.Scale, work: Path, seed: int, durations: dict) -> dict:
+def train_all(scale: Scale, work: Path, seed: int, durations: dict) -> dict:
     t0 = time.perf_counter()
-    C.log(f"training {', '.join(scale.models)}")
-    runs = {m: C.ensure_trained(work, scale, m, seed) for m in scale.models}
+    log(f"training {', '.join(scale.models)}")
+    runs = {m: ensure_trained(work, scale, m, seed) for m in scale.models}
     durations["training"] = time.perf_counter() - t0
     # A rerun reuses finished trainings; their own durations were recorded when they ran.
     durations["training_recorded"] = sum(r.get("train_seconds", 0.0) for r in runs.values())
     return runs
 
 
-def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tuple[list, dict]:
+def evaluate_rows(scale: Scale, work: Path, runs: dict, durations: dict) -> tuple[list, dict]:
     from gijax.baseline.rtss import get_rtss_preset
     from gijax.nn.presets import get_preset
 
@@ -65,21 +76,21 @@ def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tu
     n = scale.test_samples[TEST]
     rows, preds = [], {}
     for preset in scale.rtss_same:
-        C.log(f"  evaluating {preset} on {TEST}")
-        res = C.cached_evaluation(
+        log(f"  evaluating {preset} on {TEST}")
+        res = cached_evaluation(
             work, {"method": preset, "data": TEST, "samples": n, "scale": scale.name,
                    "pano": list(scale.pano_hw)},
-            lambda rig, p=preset: C.rtss_predictor(rig, p, scale.pano_hw), data)
+            lambda rig, p=preset: rtss_predictor(rig, p, scale.pano_hw), data)
         config = get_rtss_preset(preset)
         rows.append(_row(preset, "classical", config.candidates.upper(), config.num_candidates,
                          res))
         preds[preset] = res["first_prediction"]
     for model, run in runs.items():
-        C.log(f"  evaluating {run['preset']} on {TEST}")
-        res = C.cached_evaluation(
+        log(f"  evaluating {run['preset']} on {TEST}")
+        res = cached_evaluation(
             work, {"method": run["preset"], "train": run["command"], "data": TEST, "samples": n,
                    "candidates": "train"},
-            lambda rig, r=run: C.net_predictor(Path(r["run"]), rig, "train"), data)
+            lambda rig, r=run: net_predictor(Path(r["run"]), rig, "train"), data)
         mc = get_preset(run["preset"])
         rows.append(_row(model, "learned", mc.candidates.upper(), mc.num_candidates, res,
                          preset=run["preset"]))
@@ -89,47 +100,48 @@ def evaluate_rows(scale: C.Scale, work: Path, runs: dict, durations: dict) -> tu
 
 
 def _row(model: str, kind: str, cand_type: str, num: int, res: dict, preset: str = "") -> dict:
-    keep = C.ROW_METRICS
+    keep = ROW_METRICS
     return {"model": model, "preset": preset or model, "kind": kind, "cand_type": cand_type,
-            "num_candidates": num, "status": "ok", "paper_mae": C.PAPER_MAE_SAME.get(model),
+            "num_candidates": num, "status": "ok", "paper_mae": PAPER_MAE_SAME.get(model),
             **{k: res.get(k) for k in keep}}
 
 
 def table_markdown(rows: list) -> str:
     header = ["model", "candidates", "num", "MAE", "RMSE", "SSIM", "MAE (gijax)", "coverage",
               "time (ms)", "peak (MB)", "paper MAE"]
-    body = [[r["preset"], r["cand_type"], str(r["num_candidates"]), C.fmt(r["mae"]),
-             C.fmt(r["rmse"]), C.fmt(r["ssim"]), C.fmt(r.get("mae_gijax")),
-             C.fmt(r["coverage"], 3),
-             C.fmt(r["time_ms"], 1), C.fmt(r["peak_mb"], 1), C.fmt(r["paper_mae"], 3)]
+    body = [[r["preset"], r["cand_type"], str(r["num_candidates"]), fmt(r["mae"]),
+             fmt(r["rmse"]), fmt(r["ssim"]), fmt(r.get("mae_gijax")),
+             fmt(r["coverage"], 3),
+             fmt(r["time_ms"], 1), fmt(r["peak_mb"], 1), fmt(r["paper_mae"], 3)]
             for r in rows]
-    return C.markdown_table(header, body)
+    return markdown_grid(header, body)
 
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    args, scale, work, out, results = C.parse_script_args(__doc__, NAME, argv)
+    args, scale, work, out, results = parse_script_args(__doc__, NAME, argv)
     started = time.time()
     durations = {}
 
     data = prepare(scale, work, [TEST], durations)
     runs = train_all(scale, work, args.seed, durations)
-    C.log(f"evaluating on {TEST}")
+    log(f"evaluating on {TEST}")
     rows, preds = evaluate_rows(scale, work, runs, durations)
 
-    claims = [C.claim_gi_at_least_ev(rows), C.claim_learned_beats_classical(rows)]
-    C.print_claims(claims, scale)
+    claims = [claim_gi_at_least_ev(rows), claim_learned_beats_classical(rows)]
+    print_claims(claims, scale)
     from gijax.data import DatasetReader
 
     test_dir = work / "data" / TEST
     sample = DatasetReader(test_dir)[0]
     t0 = time.perf_counter()
     figure = out.with_suffix(".png")
-    C.save_figure(figure, sample, [(r["preset"], preds[r["model"]]) for r in rows],
+    save_figure(figure, sample, [(r["preset"], preds[r["model"]]) for r in rows],
                   f"{TEST}, first held-out sample ({scale.name} scale)")
     durations["figure"] = time.perf_counter() - t0
-    prov = C.provenance("same_layout.py", argv, scale, args.seed, work, started, durations, data)
-    prov["test_styles"] = {TEST: C.style_counts(test_dir)}
+    prov = provenance_record("same_layout.py", argv, scale, args.seed, work, started, durations,
+                             data)
+    prov["test_styles"] = {TEST: style_counts(test_dir)}
     doc = {"table": "same_layout", "test_data": TEST, "rows": rows, "claims": claims,
            "training": runs,
            "figure": figure.name, "provenance": prov}
@@ -139,15 +151,15 @@ def main(argv=None) -> int:
         f"them: labels inside 0.5-100 m, per-sample means, torchmetrics' SSIM; 'MAE (gijax)' "
         f"clamps labels to the range and pools all pixels; time: median per sample from raw "
         f"fisheye images; peak: XLA memory analysis of that call).",
-        table_markdown(rows), "## Claims", C.claims_markdown(claims, scale),
-        f"![first test sample]({figure.name})", "## Provenance", C.provenance_markdown(prov)])
-    C.save_table(out, "Same camera layout (Table I analogue)", md, doc)
-    C.log(f"wrote {out.with_suffix('.md')}, {out.with_suffix('.json')} and {figure}")
+        table_markdown(rows), "## Claims", claims_markdown(claims, scale),
+        f"![first test sample]({figure.name})", "## Provenance", provenance_markdown(prov)])
+    save_table(out, "Same camera layout (Table I analogue)", md, doc)
+    log(f"wrote {out.with_suffix('.md')}, {out.with_suffix('.json')} and {figure}")
     if results is not None:
         rel = Path(figure).resolve().relative_to(results.resolve().parent) \
             if Path(figure).resolve().is_relative_to(results.resolve().parent) else figure
-        C.update_results_section(results, NAME, md.replace(f"]({figure.name})", f"]({rel})"))
-        C.log(f"updated the {NAME} section of {results}")
+        update_results_section(results, NAME, md.replace(f"]({figure.name})", f"]({rel})"))
+        log(f"updated the {NAME} section of {results}")
     return 0
 
 

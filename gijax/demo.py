@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-BUNDLED_MODEL = Path(__file__).parent / "assets" / "G16VV-cpu"
+# The bundled model the demo runs unless told otherwise (gijax/assets, see 'gijax models').
+DEFAULT_MODEL = "G16VV-cpu"
 DEMO_RIGS = ("paper-train", "paper-test3")
 
 
@@ -51,10 +52,11 @@ def _timed(fn):
 
 
 def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
-             model_dir: str | os.PathLike | None = None, rigs=DEMO_RIGS,
+             model: str | os.PathLike = DEFAULT_MODEL, rigs=DEMO_RIGS,
              baseline: str = "RS-E32", progress: bool = True) -> dict:
     """Run the demo and write ``demo.png``, ``points.ply`` and ``demo.json`` to ``out_dir``.
 
+    ``model`` is a training run folder, an inference bundle or the name of a bundled model.
     ``seed`` None draws a fresh scene each run (the seed used is printed and saved).
     Returns the metrics table as a dict ``{rig: {method: metrics}}``.
     """
@@ -67,17 +69,13 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     from gijax.geometry.rig import scale_rig
     from gijax.predict import predict
     from gijax.render import render_sample
-    from gijax.train.bundle import load_model
+    from gijax.store import load_model
     from gijax.viz.pointcloud import panorama_points, write_ply
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     seed = int(np.random.SeedSequence().entropy % (2**31)) if seed is None else int(seed)
-    model_dir = Path(model_dir) if model_dir is not None else BUNDLED_MODEL
-    if not (model_dir / "config.json").is_file():
-        raise FileNotFoundError(f"no trained model at {model_dir} (expected a run folder with "
-                                f"config.json and checkpoints)")
-    model, config, train_cand = load_model(model_dir)
+    net, config, train_cand = load_model(model)
     pano = Panorama.hemisphere(*config.output_hw)
 
     steps = len(rigs) * 5
@@ -101,7 +99,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
                  "rig-aware GI (gijax)": np.asarray(rig_gi_candidates(rig, n))}
         for label, cand in cands.items():
             bar.set_postfix_str(f"{name}: {config.name} ({label})")
-            res, secs = _timed(lambda: predict(model, small, sample["images"], sample["masks"],
+            res, secs = _timed(lambda: predict(net, small, sample["images"], sample["masks"],
                                                cand))
             inv = np.where(res["valid"], res["inv_distance"], np.nan)
             methods.append(MethodResult(f"{config.name} {label}", inv, secs,
@@ -126,7 +124,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     write_ply(str(out_dir / "points.ply"), points, colours)
     _figure(out_dir / "demo.png", panels, train_cand)
     with open(out_dir / "demo.json", "w") as f:
-        json.dump({"seed": seed, "model": str(model_dir), "table": table}, f, indent=2)
+        json.dump({"seed": seed, "model": str(model), "table": table}, f, indent=2)
     print(format_table(table, seed))
     print(f"wrote {out_dir / 'demo.png'}, {out_dir / 'points.ply'}, {out_dir / 'demo.json'}")
     return table

@@ -41,8 +41,8 @@ from flax import nnx
 
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig
-from gijax.nn import (FeatureExtractor, ModelConfig, get_preset, make_cost_volume, make_unet,
-                      regress)
+from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_cost_volume,
+                      make_unet, regress)
 from gijax.sweep.grid import rescale_pixels, sweep_grid
 from gijax.sweep.sample import sample_sweep
 from gijax.sweep.surrogate import resample_surrogates, surrogate_maps
@@ -105,11 +105,9 @@ def check_candidates(config: ModelConfig, candidates) -> None:
                          f"({config.num_candidates},); found shape {shape}")
     if isinstance(candidates, jax.core.Tracer):
         return
-    c = np.asarray(candidates, np.float64)
-    if not np.all(np.isfinite(c)) or np.any(c <= 0):
-        raise ValueError(f"candidates must be finite positive distances in metres; found {c}")
-    if np.any(np.diff(c) <= 0):
-        raise ValueError(f"candidates must be strictly ascending distances; found {c}")
+    from gijax.candidates.validation import check_candidates as check_list
+
+    check_list(candidates)
 
 
 def check_surrogates(config: ModelConfig, surrogates, masks, num_cameras: int) -> None:
@@ -230,63 +228,35 @@ class OmniStereoNet(nnx.Module):
         return forward_surrogates(self, surrogates, masks, grids)
 
 
-# Flax's default initialisers by variable name: conv / linear kernels are LeCun-normal
-# (truncated at two standard deviations, rescaled to keep the variance 1 / fan_in), biases
-# and BatchNorm shifts and running means 0, BatchNorm scales and running variances 1.
-_TRUNCATED_NORMAL_STD = 0.87962566103423978  # std of a unit normal truncated to [-2, 2]
-_CONSTANT_INIT = {"bias": 0.0, "mean": 0.0, "scale": 1.0, "var": 1.0}
-
-
-def _lecun_normal(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-    z = rng.standard_normal(shape)
-    bad = np.abs(z) > 2.0
-    while bad.any():
-        z[bad] = rng.standard_normal(int(bad.sum()))
-        bad = np.abs(z) > 2.0
-    fan_in = int(np.prod(shape[:-1]))
-    return z * (np.sqrt(1.0 / fan_in) / _TRUNCATED_NORMAL_STD)
-
-
-def numpy_initialised(config: ModelConfig, seed: int = 0) -> OmniStereoNet | None:
-    """The model with flax's default initial distributions drawn by numpy, or None when it
-    holds a variable these defaults do not cover.
-
-    Why: XLA compiles one initialiser program per distinct weight shape (about half a CPU
-    second each here), which makes building a paper-size network take a minute; building it
-    abstractly and filling the arrays with numpy takes well under a second.
-    """
-    abstract = nnx.eval_shape(lambda: OmniStereoNet(config, nnx.Rngs(seed)))
-    graphdef, state = nnx.split(abstract)
-    rng = np.random.default_rng(seed)
-    known = True
-
-    def fill(path, leaf):
-        nonlocal known
-        names = [getattr(k, "key", getattr(k, "name", None)) for k in path]
-        name = names[-2] if names and names[-1] == "value" else names[-1]
-        if name == "kernel":
-            return jnp.asarray(_lecun_normal(rng, tuple(leaf.shape)), leaf.dtype)
-        if name in _CONSTANT_INIT:
-            return jnp.full(leaf.shape, _CONSTANT_INIT[name], leaf.dtype)
-        known = False
-        return leaf
-
-    state = jax.tree_util.tree_map_with_path(fill, state)
-    if not known:
-        return None
-    return nnx.merge(graphdef, state)
-
-
 def create_model(name_or_config: str | ModelConfig, seed: int = 0) -> OmniStereoNet:
     """A freshly initialised :class:`OmniStereoNet` from a preset name (e.g. 'G16VV-cpu') or a
-    :class:`~gijax.nn.presets.ModelConfig`; ``seed`` fixes the initial weights.
+    :class:`~gijax.nn.presets.ModelConfig`: exactly ``OmniStereoNet(config, nnx.Rngs(seed))``.
 
-    The weights follow flax's default initial distributions (see :func:`numpy_initialised`);
-    a module with other variables is initialised by its own initialisers.
+    Kernels are LeCun-normal (:func:`gijax.nn.layers.kernel_init`, which keeps eager
+    construction of a paper-size network to seconds on a CPU); biases and BatchNorm shifts and
+    running means start at 0, BatchNorm scales and running variances at 1.
     """
     config = get_preset(name_or_config) if isinstance(name_or_config, str) else name_or_config
     if not isinstance(config, ModelConfig):
         raise ValueError(f"expected a preset name or a ModelConfig; found "
                          f"{type(name_or_config).__name__}")
-    model = numpy_initialised(config, seed)
-    return model if model is not None else OmniStereoNet(config, nnx.Rngs(seed))
+    return OmniStereoNet(config, nnx.Rngs(seed))
+
+
+def with_conv3d(model: OmniStereoNet, conv3d: str) -> OmniStereoNet:
+    """A copy of ``model`` whose 3-D convolutions lower as ``conv3d`` ('auto', 'split' or
+    'native', see :class:`~gijax.nn.presets.ModelConfig`), its config saying so, with the same
+    variable values (arrays shared, not copied) and train / eval mode; ``model`` is unchanged.
+
+    The lowering is part of the module graph, so a function jitted for one model is traced
+    anew for the copy. The ONNX exporter uses this to emit one Conv node per 3-D conv from a
+    model trained with the CPU's split lowering.
+    """
+    config = dataclasses.replace(model.config, conv3d=conv3d)   # validates the name
+    graphdef, state = nnx.split(model)
+    copy = nnx.merge(graphdef, state)
+    copy.config = config
+    for _, module in nnx.iter_modules(copy):
+        if isinstance(module, Conv3D):
+            module.lowering = conv3d
+    return copy

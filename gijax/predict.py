@@ -1,16 +1,23 @@
 """Inference: raw fisheye images -> distance panorama, and the files that show it.
 
-:func:`predict` is pure (arrays in, arrays out): raw images are resampled to the model's
-surrogate images and run through the network in eval mode (BatchNorm running statistics), both
-by :func:`gijax.model.forward` with grids from :func:`gijax.model.make_grids`. :func:`write_prediction` writes the results: the
-distance panorama as float32 ``.npy``, colour-mapped PNGs with colour bars (distance and
-uncertainty), a coloured point cloud (``.ply``) and the per-pixel validity.
+:func:`predict` has no side effects but is not traceable: it is the eager edge for one sample
+(numpy in, numpy out; inputs checked with errors that name them). Images of another size are
+handled by :func:`fit_images`, the one size policy of every method: resized when the aspect
+ratio is the rig's, refused otherwise. The traceable core is :func:`gijax.model.forward` with
+grids from :func:`gijax.model.make_grids`: raw images resampled to the model's surrogate
+images and run through the network in eval mode (BatchNorm running statistics).
+:func:`write_prediction` writes the results: the distance panorama as float32 ``.npy``,
+colour-mapped PNGs with colour bars (distance and, for the learned model, uncertainty), the
+colour panorama ``rgb.png`` (each pixel the mean colour of its predicted point over the cameras
+that see it, :func:`point_colours`), a coloured point cloud (``.ply``) and the per-pixel
+validity.
 
 Invalid pixels (seen by fewer cameras than a distance needs: the model's ``valid`` output, or
 RTSS's) follow one convention in every file, whichever method made them (:data:`INVALID`):
-NaN in ``distance.npy``, False / 0 in ``valid.npy`` / ``valid.png``, black in the colour maps,
-absent from ``points.ply``, and counted in ``prediction.json``. The in-memory result of
-:func:`predict` keeps the network's raw values there, marked only by ``valid``.
+NaN in ``distance.npy`` (never inf), False / 0 in ``valid.npy`` / ``valid.png``, black in the
+colour maps and ``rgb.png``, absent from ``points.ply``, and counted in ``prediction.json``.
+The in-memory result of :func:`predict` keeps the network's raw values there, marked only by
+``valid``.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ from flax import nnx
 
 from gijax.geometry.panorama import Panorama, ray_grid
 from gijax.geometry.rig import Rig, project_rig_points, scale_rig
-from gijax.io.paths import write_bytes_atomic
+from gijax.io.paths import atomic_path, write_bytes_atomic
 from gijax.model import OmniStereoNet, check_candidates, forward, make_grids
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
@@ -44,64 +51,114 @@ def _forward(model: OmniStereoNet, images, masks, rig, candidates):
 
 @jax.jit
 def _point_colours(rig: Rig, images: Array, distance: Array) -> Array:
-    """(H, W, 3) colour of each predicted point, from the camera closest to the reference that
-    sees it (by projection validity and the rig's masks); 0 where no camera sees it."""
+    """(H, W, 3) mean colour of each predicted point over the cameras that see it (projection
+    valid and inside the rig's masks); 0 where no camera sees it."""
     pano = Panorama.hemisphere(*distance.shape)
     points = rig.reference + distance[..., None] * ray_grid(pano, distance.dtype)
     pixels, seen = project_rig_points(rig, points)
     colours, seen = jax.vmap(bilinear_sample)(images, pixels, seen)
-    order = jnp.argsort(jnp.linalg.norm(rig.translations - rig.reference, axis=-1))
-    out = jnp.zeros(distance.shape + (images.shape[-1],), images.dtype)
-    filled = jnp.zeros(distance.shape, bool)
-    for k in range(rig.num_cameras):  # static count; nearest camera first
-        i = order[k]
-        take = seen[i] & ~filled
-        out = jnp.where(take[..., None], colours[i], out)
-        filled = filled | take
-    return out
+    # Averaging rather than taking one camera evens out per-camera exposure and white balance
+    # and never depends on a camera order.
+    weight = seen.astype(colours.dtype)[..., None]
+    total = jnp.sum(colours * weight, axis=0)
+    count = jnp.sum(weight, axis=0)
+    return jnp.where(count > 0, total / jnp.maximum(count, 1.0), 0.0)
 
 
-def model_rig(config: ModelConfig, rig: Rig, image_hw: tuple[int, int]) -> tuple[Rig, bool]:
-    """The rig matching images of size ``image_hw`` and whether the images must be resized.
+def point_colours(rig: Rig, images, masks, distance) -> np.ndarray:
+    """(H, W, 3) colour in [0, 1] of each point of a distance panorama (any method's): the mean
+    of its bilinear samples in every camera that sees it, 0 where none does.
 
-    Images may come at the rig's own size (resized by ``config.image_scale`` when that is not 1)
-    or already at the scaled size.
+    ``images`` (N, h, w, 3) at the rig's size, ``masks`` (N, h, w) in place of the rig's own
+    (None keeps them). Points without a distance (NaN or not positive) are coloured as if 1 m
+    away; every written file leaves them out or black.
     """
+    if masks is not None:
+        rig = rig.replace(masks=tuple(jnp.asarray(m, jnp.float32) for m in masks))
+    distance = np.asarray(distance, np.float32)
+    distance = np.where(np.isfinite(distance) & (distance > 0), distance, 1.0)
+    return np.asarray(_point_colours(rig, as_float_image(images), jnp.asarray(distance)))
+
+
+def _size_text(hw) -> str:
+    return f"{hw[0]} x {hw[1]}"
+
+
+def fit_images(rig: Rig, images, masks=None, size: tuple[int, int] | None = None,
+               log=None) -> tuple[Rig, np.ndarray, np.ndarray | None]:
+    """The one image-size policy of every method: images of another size than the method works
+    at are resized when their aspect ratio is the rig's, and refused otherwise.
+
+    Args:
+      rig: the rig at its calibrated image size (cameras of one size).
+      images: (N, h, w, C) images, all of one size; ``masks`` (N, h, w) or None.
+      size: (height, width) the method works at (the learned model: the rig's size times its
+        ``image_scale``), or None to work at the images' own size (the classical baseline
+        resamples every image to its matching view anyway, so only the lens is rescaled).
+      log: called with a one-line note when anything is resized or rescaled.
+
+    Returns the rig at the working size, and the images and masks at that size (float32 masks
+    where resized). Raises ValueError naming the expected and found sizes when the aspect
+    ratio differs (a crop or another camera, not a resize).
+    """
+    images = np.asarray(images)
     cam = rig.cameras[0]
-    if image_hw == (cam.height, cam.width):
-        if config.image_scale == 1.0:
-            return rig, False
-        return scale_rig(rig, config.image_scale), True
-    if config.image_scale != 1.0:
-        scaled = scale_rig(rig, config.image_scale)
-        if image_hw == (scaled.cameras[0].height, scaled.cameras[0].width):
-            return scaled, False
-        raise ValueError(f"images must be {cam.height} x {cam.width} (the rig's size) or "
-                         f"{scaled.cameras[0].height} x {scaled.cameras[0].width} (scaled by "
-                         f"{config.image_scale} for model {config.name!r}); found "
-                         f"{image_hw[0]} x {image_hw[1]}")
-    raise ValueError(f"images must be {cam.height} x {cam.width} (the rig's size); found "
-                     f"{image_hw[0]} x {image_hw[1]}")
+    rig_hw = (cam.height, cam.width)
+    found = tuple(int(x) for x in images.shape[1:3])
+    wanted = found if size is None else tuple(int(x) for x in size)
+    # Same aspect within the one pixel that rounding a scaled size can lose.
+    if abs(found[0] - rig_hw[0] * found[1] / rig_hw[1]) > 1.0:
+        need = "" if size is None else f"; the model works at {_size_text(wanted)}"
+        raise ValueError(f"images must be {_size_text(rig_hw)} (the rig's size{need}) or "
+                         f"another size of the same aspect ratio; found {_size_text(found)}")
+    factor = wanted[1] / rig_hw[1]
+    run_rig = rig if wanted == rig_hw else scale_rig(rig, factor)
+    run_hw = (run_rig.cameras[0].height, run_rig.cameras[0].width)
+    if run_hw != wanted:
+        raise ValueError(f"the rig's {_size_text(rig_hw)} cameras scaled by {factor:g} are "
+                         f"{_size_text(run_hw)}, not the {_size_text(wanted)} asked for")
+    if found != run_hw:
+        # Shrinking averages (INTER_AREA) so fine texture does not alias; enlarging
+        # interpolates.
+        inter = cv2.INTER_AREA if found[1] > run_hw[1] else cv2.INTER_LINEAR
+        images = _resize(images, run_hw, inter)
+        if masks is not None:
+            masks = _resize(np.asarray(masks, np.float32), run_hw, inter)
+        if log is not None:
+            log(f"note: images {_size_text(found)} resized to {_size_text(run_hw)} (the rig's "
+                f"{_size_text(rig_hw)} scaled by {factor:g}) for the model")
+    elif run_rig is not rig and log is not None:
+        log(f"note: images are {_size_text(found)}; the rig's {_size_text(rig_hw)} lenses are "
+            f"rescaled by {factor:g} to match them")
+    return run_rig, images, masks
 
 
-def _resize(images: np.ndarray, rig: Rig, interpolation: int) -> np.ndarray:
+def model_size(config: ModelConfig, rig: Rig) -> tuple[int, int]:
+    """(height, width) of the images the learned model runs on: the rig's size times the
+    configuration's ``image_scale``, rounded as :func:`gijax.geometry.rig.scale_rig` rounds."""
     cam = rig.cameras[0]
-    out = [cv2.resize(np.ascontiguousarray(im), (cam.width, cam.height),
-                      interpolation=interpolation) for im in images]
-    return np.stack([o.reshape(cam.height, cam.width, *im.shape[2:]) for o, im in
-                     zip(out, images)])
+    return (int(round(cam.height * config.image_scale)),
+            int(round(cam.width * config.image_scale)))
 
 
-def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> dict:
+def _resize(images: np.ndarray, hw: tuple[int, int], interpolation: int) -> np.ndarray:
+    out = [cv2.resize(np.ascontiguousarray(im), (hw[1], hw[0]), interpolation=interpolation)
+           for im in images]
+    return np.stack([o.reshape(hw[0], hw[1], *im.shape[2:]) for o, im in zip(out, images)])
+
+
+def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None) -> dict:
     """Distance panorama of one sample.
 
     Args:
       model: an :class:`OmniStereoNet` (its mode is not changed: eval mode is applied to a view).
       rig: the rig at its calibrated image size.
-      images: (N, h, w, 3) raw fisheye images, uint8 or float RGB in [0, 1], at the rig's size
-        or at the rig's size times ``model.config.image_scale``.
+      images: (N, h, w, 3) raw fisheye images, uint8 or float RGB in [0, 1], of the rig's
+        aspect ratio; resized to the rig's size times ``model.config.image_scale``
+        (:func:`fit_images`).
       masks: (N, h, w) validity masks (1 = sees the world) or None for the rig's own masks.
       candidates: (D,) ascending distances in metres, D = the model's candidate count.
+      log: receives the note when the images are resized.
 
     Returns:
       numpy dict: ``inv_distance`` (H, W) 1/m, ``distance`` (H, W) m, ``prob`` (D, H, W),
@@ -122,16 +179,12 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> dict:
     if config.cost_volume == "concat" and rig.num_cameras != config.num_cameras:
         raise ValueError(f"model {config.name!r} concatenates exactly {config.num_cameras} cameras;"
                          f" the rig has {rig.num_cameras}")
-    run_rig, resize = model_rig(config, rig, tuple(images.shape[1:3]))
     if masks is not None:
         masks = np.asarray(masks)
         if masks.shape != images.shape[:3]:
             raise ValueError(f"masks must have shape {images.shape[:3]} to match the images; "
                              f"found {masks.shape}")
-    if resize:
-        images = _resize(images, run_rig, cv2.INTER_AREA)
-        if masks is not None:
-            masks = _resize(masks.astype(np.float32), run_rig, cv2.INTER_AREA)
+    run_rig, images, masks = fit_images(rig, images, masks, model_size(config, rig), log)
     check_images(run_rig, images, masks)
     images = as_float_image(images)
     if masks is None:
@@ -143,22 +196,22 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> dict:
     cand = jnp.asarray(candidates, jnp.float32)
     out = _forward(view, images[None], jnp.asarray(masks, jnp.float32)[None], run_rig, cand)
     result = {k: np.asarray(v[0]) for k, v in out.items()}
-    colour_rig = run_rig if masks is None else run_rig.replace(
-        masks=tuple(jnp.asarray(m, jnp.float32) for m in masks))
-    result["colour"] = np.asarray(_point_colours(colour_rig, images, out["distance"][0]))
+    result["colour"] = point_colours(run_rig, images, masks, out["distance"][0])
     result["candidates"] = np.asarray(candidates, np.float64)
     return result
 
 
 INVALID = ("invalid pixels (valid = False): NaN in distance.npy, 0 in valid.png and False in "
-           "valid.npy, black in inverse_distance.png and uncertainty.png, no point in "
+           "valid.npy, black in inverse_distance.png, uncertainty.png and rgb.png, no point in "
            "points.ply")
 
 
 def mark_invalid(result: dict) -> dict:
     """``result`` with ``distance``, ``inv_distance`` and ``entropy`` NaN where ``valid`` is
-    False (the convention of every written file), whichever method produced it."""
-    valid = np.asarray(result["valid"], bool)
+    False (the convention of every written file), whichever method produced it. A distance
+    that is not a finite positive number is invalid too, so no file ever holds inf."""
+    distance = np.asarray(result["distance"], np.float32)
+    valid = np.asarray(result["valid"], bool) & np.isfinite(distance) & (distance > 0)
     out = dict(result, valid=valid)
     for key in ("distance", "inv_distance", "entropy"):
         if key in result:
@@ -168,11 +221,8 @@ def mark_invalid(result: dict) -> dict:
 
 
 def _atomic_save_npy(path: Path, array: np.ndarray) -> None:
-    import io
-
-    buf = io.BytesIO()
-    np.save(buf, array)
-    write_bytes_atomic(path, buf.getvalue())
+    with atomic_path(path) as tmp:  # the temporary ends in .npy, so np.save appends nothing
+        np.save(tmp, array)
 
 
 def _metre_ticks(d_min: float, d_max: float) -> dict:
@@ -190,7 +240,9 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
 
     Files: ``distance.npy`` (H, W) float32 metres; ``valid.npy`` (H, W) bool and ``valid.png``
     (255 = valid, 0 = invalid); ``inverse_distance.png`` (colour map of 1/d with a colour bar
-    labelled in metres); ``uncertainty.png`` (entropy in nats, 0 .. log D); ``points.ply``
+    labelled in metres); ``uncertainty.png`` (entropy in nats, 0 .. log D; only when the result
+    has an ``entropy``: the classical baseline has no candidate distribution and writes none);
+    ``rgb.png`` (H, W) the colour panorama (``colour``, black where invalid); ``points.ply``
     (binary, rig frame, metres, coloured from the images; points beyond
     ``max_point_distance``, by default the farthest candidate, are left out) and
     ``prediction.json`` (candidates, title, sizes, valid pixel count). Invalid pixels follow
@@ -219,10 +271,16 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
         str(out / "inverse_distance.png"), result["inv_distance"], "distance (colour = 1/d)",
         1.0 / d_max, 1.0 / d_min, cmap="turbo", title=title, valid=valid,
         ticks=_metre_ticks(d_min, d_max))
-    paths["uncertainty_png"] = save_panorama_png(
-        str(out / "uncertainty.png"), result["entropy"], "entropy of the candidate "
-        "distribution (nats)", 0.0, math.log(len(cand)), cmap="magma",
-        title=(title + " - uncertainty").strip(" -"), valid=valid)
+    if "entropy" in result:
+        paths["uncertainty_png"] = save_panorama_png(
+            str(out / "uncertainty.png"), result["entropy"], "entropy of the candidate "
+            "distribution (nats)", 0.0, math.log(len(cand)), cmap="magma",
+            title=(title + " - uncertainty").strip(" -"), valid=valid)
+    rgb = np.where(valid[..., None], np.asarray(result["colour"], np.float32), 0.0)
+    rgb = np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    paths["rgb_png"] = str(out / "rgb.png")
+    write_bytes_atomic(Path(paths["rgb_png"]),
+                       cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))[1].tobytes())
     limit = d_max if max_point_distance is None else max_point_distance
     points, keep = panorama_points(distance, np.asarray(rig.reference), valid=valid,
                                    max_distance=limit)
@@ -234,19 +292,3 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     write_bytes_atomic(out / "prediction.json", json.dumps(meta, indent=2).encode())
     paths["meta"] = str(out / "prediction.json")
     return paths
-
-
-def load_model(path: str | os.PathLike) -> tuple[OmniStereoNet, np.ndarray]:
-    """A trained model (eval mode) and its training candidates (metres).
-
-    ``path`` is a training run folder (``config.json`` plus orbax checkpoints; the best
-    validated checkpoint is used when there is one) or an inference bundle
-    (:mod:`gijax.train.bundle`).
-    """
-    from gijax.train.bundle import load_model as load_any
-
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such checkpoint / run folder")
-    model, _, candidates = load_any(path)
-    return model, np.asarray(candidates, np.float64)

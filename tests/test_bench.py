@@ -158,6 +158,35 @@ def test_json_and_markdown_writers(tmp_path):
         "| z |  | 10 |  |")
     text = report.text_table(rows, cols).splitlines()
     assert text[0].split() == ["name", "time", "ms", "n", "pct"] and len(text) == 4
+    assert report.markdown_grid(["a", "b"], [["1", "x|y"]], numeric=[True, False]) == (
+        "| a | b |\n| ---: | --- |\n| 1 | x\\|y |")
+    with pytest.raises(ValueError, match="one alignment per column"):
+        report.markdown_grid(["a", "b"], [], numeric=[True])
+
+
+def test_git_revision_ignores_the_named_paths(tmp_path):
+    import subprocess
+
+    from gijax.bench.machine import git_revision
+
+    def git(*args):
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args],
+                       cwd=tmp_path, check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / "results").mkdir()
+    (tmp_path / "code.py").write_text("a = 1\n")
+    (tmp_path / "results" / "table.md").write_text("old\n")
+    git("add", ".")
+    git("commit", "-q", "-m", "start")
+    head = git_revision(tmp_path)
+    assert len(head["commit"]) == 40 and head["dirty"] is False
+    (tmp_path / "results" / "table.md").write_text("new\n")
+    assert git_revision(tmp_path)["dirty"] is True
+    assert git_revision(tmp_path, ignore=["results"])["dirty"] is False
+    (tmp_path / "code.py").write_text("a = 2\n")
+    assert git_revision(tmp_path, ignore=["results"]) == {"commit": head["commit"], "dirty": True}
+    assert git_revision(tmp_path.parent / "no-such-folder") == {"commit": None, "dirty": None}
 
 
 def test_polygon_rig_positions():

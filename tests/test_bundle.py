@@ -10,7 +10,9 @@ from flax import nnx
 
 from gijax.model import create_model
 from gijax.nn.presets import get_preset
-from gijax.train.bundle import WEIGHTS_FILE, is_bundle, load_bundle, load_model, save_bundle
+from gijax.store import is_bundle, load_bundle, load_model
+from gijax.store.bundles import WEIGHTS_FILE
+from gijax.train.bundle import save_bundle
 from gijax.train.config import TrainConfig, save_run_config
 
 TINY = dict(feature_channels=4, feature_blocks=(1, 1), unet_in=4, unet_base=4,
@@ -85,15 +87,14 @@ def test_bundled_model_fits_the_network_and_beats_a_constant():
     wide margin: a bundle left behind by an architecture change fails here, not in the demo."""
     import numpy as np
 
-    from gijax.demo import BUNDLED_MODEL
+    from gijax.demo import DEFAULT_MODEL
     from gijax.geometry.layouts import builtin_rig
     from gijax.geometry.panorama import Panorama
     from gijax.geometry.rig import scale_rig
     from gijax.predict import predict
     from gijax.render import render_sample
-    from gijax.train.bundle import load_model
 
-    model, config, cand = load_model(BUNDLED_MODEL)
+    model, config, cand = load_model(DEFAULT_MODEL)
     rig = scale_rig(builtin_rig("paper-train"), config.image_scale)
     sample = render_sample(rig, 20261129, pano=Panorama.hemisphere(*config.output_hw))
     res = predict(model, rig, sample["images"], sample["masks"], np.asarray(cand))

@@ -256,6 +256,9 @@ def test_cli_rig_show_and_plot(tmp_path, capsys):
                  str(tmp_path / "out.yaml")]) == 0
     out = capsys.readouterr().out
     assert "cam2: model kb, 1280x960 px" in out and "0.3000" in out  # cam0-cam1 baseline
+    # Each lens's own limit instead of the 360 degrees a calibration's open cone would show:
+    # Double Sphere 2 arccos(-w2) with xi = -0.203, alpha = 0.589 (w2 = 0.5684) is 249.3.
+    assert "fov 360.0" not in out and "lens model limit 249.3 deg" in out
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert load_rig(tmp_path / "out.yaml").cameras[1].MODEL == "eucm"
     assert main(["rig", "show", str(tmp_path / "missing.yaml")]) == 1

@@ -281,6 +281,43 @@ def test_rig_without_overlap(rigs):
         candidates_for("uniform", 8)
 
 
+def test_checks_under_a_trace(rigs):
+    from jax.experimental import checkify
+
+    from gijax.candidates import camera_spacing, check_candidates
+    from gijax.geometry.panorama import Panorama
+
+    small = dict(pano=Panorama.hemisphere(2, 4), samples=2)
+    cam = synthetic_camera(16, 300.0 / 64.0)
+    same = make_rig([cam, cam], np.tile(np.eye(3), (2, 1, 1)), np.zeros((2, 3)),
+                    dtype=jnp.float64)
+    # Gradient through a rig without coverage: no error while tracing, NaN list, zero gradient.
+    loss = lambda t: jnp.nansum(rig_gi_candidates(same.replace(translations=t), 4, **small))
+    grad = jax.grad(loss)(same.translations)
+    np.testing.assert_array_equal(np.asarray(grad), 0.0)
+    # checkify turns the trace-time check into the same error eager calls raise.
+    err, d = checkify.checkify(jax.jit(lambda r: rig_gi_candidates(r, 4, **small)))(same)
+    assert np.all(np.isnan(np.asarray(d)))
+    with pytest.raises(checkify.JaxRuntimeError, match="rig: no panorama ray"):
+        err.throw()
+    err, _ = checkify.checkify(jax.jit(camera_spacing))(jnp.zeros((3, 3)))
+    with pytest.raises(checkify.JaxRuntimeError, match="share a centre"):
+        err.throw()
+    err, _ = checkify.checkify(jax.jit(lambda c: step_uniformity(rigs["paper-test2"], c,
+                                                                 **small)))(
+        jnp.asarray([0.5, 2.0, 1.0]))
+    with pytest.raises(checkify.JaxRuntimeError, match="strictly ascending"):
+        err.throw()
+    # The one eager check of a list names what is wrong.
+    np.testing.assert_array_equal(check_candidates([0.5, 1.0, 2.0]), [0.5, 1.0, 2.0])
+    for bad, why in (([0.5, 0.5, 2.0], "strictly ascending"), ([0.0, 1.0], "> 0 m"),
+                     ([0.5, float("inf")], "finite"), ([[0.5, 1.0]], "1-D"), ([0.5], "at least 2")):
+        with pytest.raises(ValueError, match=why):
+            check_candidates(bad)
+    with pytest.raises(ValueError, match="hold 3 distances"):
+        check_candidates([0.5, 1.0], count=3)
+
+
 # --- command line ---------------------------------------------------------------------------
 
 def test_cli_json_and_plot(tmp_path):
@@ -369,17 +406,13 @@ def test_camera_spacing_bad_input():
 
 
 def test_eval_and_predict_candidate_specs(rigs):
-    from gijax.cli.cmd_eval import choose_candidates
-    from gijax.cli.cmd_predict import resolve_candidates
-    from gijax.nn.presets import get_preset
+    from gijax.candidates.spec import resolve_candidates
 
-    mc = get_preset("G16VV-cpu")
     rig = rigs["paper-test2"]
     want = {"spacing": gi_candidates(16, 0.5, 100.0, 1.0), "ev": ev_candidates(16),
             "rig": rig_gi_candidates(rig, 16)}
     for spec, expected in want.items():
-        np.testing.assert_allclose(choose_candidates(spec, G16, mc, rig), expected, rtol=1e-6)
-        got, label = resolve_candidates(spec, mc, rig, G16)
+        got, label = resolve_candidates(spec, rig, 16, train=G16)
         np.testing.assert_allclose(got, expected, rtol=1e-6)
         assert label
-    np.testing.assert_allclose(choose_candidates("train", G16, mc, rig), G16)
+    np.testing.assert_allclose(resolve_candidates("train", rig, 16, train=G16)[0], G16)

@@ -17,7 +17,7 @@ import pytest
 # The experiment scripts live beside the package, not in it.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments import common as C  # noqa: E402
+from experiments import claims, evaluation, reporting, scales, workfolder  # noqa: E402
 from experiments import new_layout, same_layout  # noqa: E402
 
 PROVENANCE_FIELDS = ("command", "seed", "git_revision", "durations_s", "machine", "scale",
@@ -145,7 +145,7 @@ def test_provenance(smoke):
             assert field in prov, field
         assert prov["command"].startswith(f"python experiments/{name}_layout.py --scale smoke")
         assert prov["seed"] == 0 and prov["scale"] == "smoke"
-        assert prov["machine"]["cpus"] >= 1 and prov["machine"]["jax"]
+        assert prov["machine"]["cpu_count"] >= 1 and prov["machine"]["versions"]["jax"]
         assert prov["machine"]["platform"]
         assert len(prov["git_revision"]) >= 7
         assert prov["durations_s"]["total"] > 0
@@ -169,9 +169,9 @@ def test_rerun_reuses_everything(smoke):
 
 @pytest.mark.slow
 def test_held_out_check_rejects_shared_seeds(smoke):
-    assert C.check_held_out(smoke["work"], ["paper-test1"]) == {"paper-test1": 0}
+    assert workfolder.check_held_out(smoke["work"], ["paper-test1"]) == {"paper-test1": 0}
     with pytest.raises(ValueError, match="shares scene seeds"):
-        C.check_held_out(smoke["work"], ["train"])
+        workfolder.check_held_out(smoke["work"], ["train"])
 
 
 # --------------------------------------------------------------------------- pieces
@@ -202,8 +202,8 @@ def test_evaluate_matches_numpy_reference():
         est = rng.uniform(size=(12, 16)) > 0.2
         ests.append(est)
     calls = iter(zip(preds, ests))
-    metrics, first = C.evaluate(_Reader(samples),
-                                C.Predictor(lambda im, m: next(calls), cand, 1.0))
+    metrics, first = evaluation.evaluate(
+        _Reader(samples), evaluation.Predictor(lambda im, m: next(calls), cand, 1.0))
     errs, paper_mae, paper_rmse, est_count, lab_count = [], [], [], 0, 0
     for s, p, e in zip(samples, preds, ests):
         d = s["pano_distance"].astype(np.float64)
@@ -237,15 +237,15 @@ def _rows(**mae):
 
 
 def test_claim_a_and_c_verdicts():
-    assert C.claim_gi_at_least_ev(_rows(E8=0.02, G8=0.02))["status"] == "PASS"
-    fail = C.claim_gi_at_least_ev(_rows(E8=0.020, G8=0.025))
+    assert claims.claim_gi_at_least_ev(_rows(E8=0.02, G8=0.02))["status"] == "PASS"
+    fail = claims.claim_gi_at_least_ev(_rows(E8=0.020, G8=0.025))
     assert fail["status"] == "FAIL" and fail["numbers"] == {"G8": 0.025, "E8": 0.020}
     assert "-25.0 %" in fail["detail"]
-    assert C.claim_gi_at_least_ev(_rows(E8=0.02))["status"] == "N/A"
-    c = C.claim_learned_beats_classical(_rows(**{"RS-E16": 0.10, "RS-E32": 0.08, "E8": 0.05,
+    assert claims.claim_gi_at_least_ev(_rows(E8=0.02))["status"] == "N/A"
+    c = claims.claim_learned_beats_classical(_rows(**{"RS-E16": 0.10, "RS-E32": 0.08, "E8": 0.05,
                                                  "G8": 0.06}))
     assert c["status"] == "PASS" and c["numbers"]["all"]["ratio"] == pytest.approx(0.06 / 0.08)
-    c = C.claim_learned_beats_classical(_rows(**{"RS-E32": 0.08, "G8": 0.061}))
+    c = claims.claim_learned_beats_classical(_rows(**{"RS-E32": 0.08, "G8": 0.061}))
     assert c["status"] == "FAIL"                     # 0.7625 > 0.75: not clearly better
 
 
@@ -260,20 +260,20 @@ def test_claim_b_pairs_and_reductions():
              "eval_candidates": "train", "mae": 0.024},
             {"layout": "paper-test3", "model": "G16VV", "kind": "learned", "status": "ok",
              "eval_candidates": "spacing", "mae": 0.016}]
-    b = C.claim_recomputed_candidates(rows)
+    b = claims.claim_recomputed_candidates(rows)
     assert b["status"] == "PASS" and b["claim"].startswith("(b) the paper's")
     assert b["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(100 / 3)
     assert b["numbers"]["paper-test3/G16VV"]["reduction_percent"] == pytest.approx(100 / 3)
     rows[1]["mae"] = 0.031
-    assert C.claim_recomputed_candidates(rows)["status"] == "FAIL"
+    assert claims.claim_recomputed_candidates(rows)["status"] == "FAIL"
     # Rows outside the scope are reported but do not decide the verdict.
-    scoped = C.claim_recomputed_candidates(rows, lambda r: r["model"] != "G16")
+    scoped = claims.claim_recomputed_candidates(rows, lambda r: r["model"] != "G16")
     assert scoped["status"] == "PASS" and "beside the paper's scope: G16" in scoped["detail"]
     assert scoped["numbers"]["paper-test2/G16"]["in_scope"] is False
     # The same check for gijax's rig-aware list pairs its own rows with the training list.
     rows.append({"layout": "paper-test2", "model": "G16", "kind": "learned", "status": "ok",
                  "eval_candidates": "rig", "mae": 0.015})
-    rig = C.claim_recomputed_candidates(rows, new="rig")
+    rig = claims.claim_recomputed_candidates(rows, new="rig")
     assert rig["status"] == "PASS" and rig["claim"].startswith("(b, rig)")
     assert rig["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(50.0)
     assert "paper-test3/G16VV" not in rig["numbers"]          # no rig-aware row there
@@ -290,22 +290,22 @@ def test_concat_models_cannot_take_four_cameras():
 def test_results_section_update(tmp_path):
     md = tmp_path / "RESULTS.md"
     md.write_text("# R\n\n<!-- t:begin -->\nold\n<!-- t:end -->\n\nkept\n")
-    C.update_results_section(md, "t", "new table")
+    reporting.update_results_section(md, "t", "new table")
     assert md.read_text() == "# R\n\n<!-- t:begin -->\nnew table\n<!-- t:end -->\n\nkept\n"
     with pytest.raises(ValueError, match="markers"):
-        C.update_results_section(md, "other", "x")
+        reporting.update_results_section(md, "other", "x")
 
 
 def test_scales_are_consistent():
     from gijax.nn.presets import get_preset
 
-    for scale in C.SCALES.values():
-        assert set(scale.test_samples) == set(C.TEST_RIGS)
+    for scale in scales.SCALES.values():
+        assert set(scale.test_samples) == set(scales.TEST_RIGS)
         for model in scale.models:
-            mc = get_preset(C.preset_name(scale, model))
+            mc = get_preset(scales.preset_name(scale, model))
             if not scale.tiny:
                 # The label panorama is the network's output.
                 assert tuple(mc.output_hw) == tuple(scale.pano_hw)
                 assert mc.image_scale == scale.image_scale
-    assert C.SCALES["cpu"].models == C.MODELS
-    assert C.SCALES["smoke"].steps < 10
+    assert scales.SCALES["cpu"].models == scales.MODELS
+    assert scales.SCALES["smoke"].steps < 10

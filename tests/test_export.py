@@ -339,32 +339,6 @@ def test_trt_build_branches_on_version(setup, tmp_path):
     assert load_engine(str(tmp_path / "a.plan"), trt=_Recorder("8.5.2.2")) == "engine"
 
 
-# ----------------------------------------------------------------------------- checkpoints
-
-def test_checkpoint_checks(tmp_path):
-    from flax import nnx  # noqa: F401
-
-    from gijax.export.checkpoint import check_checkpoint
-    from gijax.train import step as S
-    from gijax.train.checkpoints import CheckpointStore
-    from gijax.train.config import TrainConfig, save_run_config
-
-    cfg = TrainConfig(preset="G16V-released-cpu", model_overrides=dict(
-        feature_blocks=[1, 1], unet_base=8, feature_channels=4, unet_in=4))
-    model = create_model(cfg.model_config())
-    with pytest.raises(FileNotFoundError, match="no checkpoint"):
-        check_checkpoint(tmp_path, model)
-    _, _, params, rest = S.split_model(model)
-    save_run_config(tmp_path, cfg, np.geomspace(0.5, 100, 16))
-    store = CheckpointStore(tmp_path, keep=1, best_metric=None)
-    store.save(1, S.init_state(params, rest, S.make_optimizer(cfg)), {"step": 1})
-    store.close()
-    assert check_checkpoint(tmp_path, model).name == "1"
-    other = create_model(dataclasses.replace(cfg.model_config(), unet_base=16))
-    with pytest.raises(ValueError, match="has shape .* in the checkpoint but config.json"):
-        check_checkpoint(tmp_path, other)
-
-
 def test_cli_export_preset_validates_and_reports(tmp_path, capsys):
     cfg_file = tmp_path / "tiny.json"
     cfg_file.write_text(json.dumps({k: list(v) if isinstance(v, tuple) else v

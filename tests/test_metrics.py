@@ -256,3 +256,34 @@ def test_metric_set_errors():
     sums = jax.tree.map(np.asarray, batch_sums(inv, inv, inv, jnp.asarray(PAPER_CAND)))
     with pytest.raises(ValueError, match="missing"):
         summarize(sums, "paper")
+
+
+@pytest.mark.parametrize("metric_set", ["paper", "gijax"])
+def test_unmatched_pixels_are_lost_coverage_never_nan(metric_set):
+    # A 12 x 12 sample whose label is 1 m everywhere (inverse 1), predicted 1.1 except for a
+    # block the method could not match: NaN there, and marked unestimated.
+    rng = np.random.default_rng(3)
+    dist = np.ones((1, 12, 12), np.float32)
+    dist[0, :, 6:] = 2.0
+    inv = (1.0 / dist + rng.uniform(-0.2, 0.2, dist.shape)).astype(np.float32)
+    matched = np.ones((1, 12, 12), bool)
+    matched[0, :3, :4] = False
+    inv_holes = np.where(matched, inv, np.nan).astype(np.float32)
+    m = evaluate_batch(jnp.asarray(inv_holes), jnp.asarray(dist), jnp.ones((1, 12, 12), bool),
+                       CAND, metric_set=metric_set, pred_valid=jnp.asarray(matched))
+    err = np.abs(inv - 1.0 / dist)[matched]
+    assert abs(m["mae"] - err.mean()) < 1e-6
+    assert abs(m["rmse"] - np.sqrt((err ** 2).mean())) < 1e-6
+    assert abs(m["coverage"] - matched.mean()) < 1e-9 and m["pixels"] == matched.sum()
+    # SSIM sees the holes at the far end of the candidate range (1 / 4 m here).
+    far = np.where(matched, inv, 0.25).astype(np.float32)
+    if metric_set == "gijax":
+        want = float(np.mean(_ssim_reference(far[0].astype(np.float64),
+                                             (1.0 / dist[0]).astype(np.float64))))
+    else:
+        want = float(paper_ssim(jnp.asarray(far), jnp.asarray(1.0 / dist))[0])
+    assert np.isfinite(m["ssim"]) and abs(m["ssim"] - want) < 2e-4
+    # A NaN the method did not flag is treated the same way.
+    m2 = evaluate_batch(jnp.asarray(inv_holes), jnp.asarray(dist), jnp.ones((1, 12, 12), bool),
+                        CAND, metric_set=metric_set)
+    assert all(abs(m2[k] - m[k]) < 1e-6 for k in ("mae", "rmse", "ssim", "coverage"))

@@ -11,7 +11,7 @@ from flax import nnx
 
 from gijax.geometry.layouts import TRAIN_BASELINE, synthetic_camera
 from gijax.geometry.rig import make_rig
-from gijax.model import OmniStereoNet, create_model
+from gijax.model import OmniStereoNet, create_model, with_conv3d
 from gijax.nn.presets import ModelConfig
 from gijax.train.losses import volume_loss
 
@@ -187,19 +187,24 @@ def test_every_parameter_gets_a_finite_nonzero_gradient():
             assert np.abs(v).max() > 1e-9 * scale and np.abs(v).max() > 0, name
 
 
-def test_create_model_matches_flax_structure_and_initial_distributions():
+def test_create_model_is_the_module_constructor_with_flax_initial_distributions():
     model = create_model(TINY_VAR, seed=7)
-    reference = nnx.eval_shape(lambda: OmniStereoNet(TINY_VAR, nnx.Rngs(7)))
-    assert nnx.graphdef(model) == nnx.graphdef(reference)
+    direct = OmniStereoNet(TINY_VAR, nnx.Rngs(7))
+    assert nnx.graphdef(model) == nnx.graphdef(direct)
     got = jax.tree_util.tree_flatten_with_path(nnx.state(model))[0]
-    want = jax.tree_util.tree_leaves(nnx.state(reference))
-    assert [(v.shape, v.dtype) for _, v in got] == [(v.shape, v.dtype) for v in want]
+    want = jax.tree_util.tree_flatten_with_path(nnx.state(direct))[0]
+    assert [p for p, _ in got] == [p for p, _ in want] and len(got) > 50
+    for (path, v), (_, w) in zip(got, want):
+        np.testing.assert_array_equal(np.asarray(v), np.asarray(w),
+                                      err_msg=jax.tree_util.keystr(path))
+    # Flax's defaults: LeCun-normal kernels (variance 1 / fan_in, truncated at 2 sigma),
+    # zero biases, shifts and running means, unit scales and running variances.
     z = []
     for path, v in got:
         name = jax.tree_util.keystr(path)
         v = np.asarray(v)
         if "kernel" in name:
-            z.append((v * np.sqrt(np.prod(v.shape[:-1]))).ravel())  # LeCun: var = 1 / fan_in
+            z.append((v * np.sqrt(np.prod(v.shape[:-1]))).ravel())
         elif "scale" in name or "var" in name:
             assert np.all(v == 1.0), name
         else:
@@ -210,6 +215,29 @@ def test_create_model_matches_flax_structure_and_initial_distributions():
     other = create_model(TINY_VAR, seed=8)
     assert not np.allclose(np.asarray(other.unet.head.kernel[...]),
                            np.asarray(model.unet.head.kernel[...]))
+
+
+def test_with_conv3d_copies_the_model_with_another_lowering(variance_model):
+    native = with_conv3d(variance_model, "native")
+    assert native.config == dataclasses.replace(TINY_VAR, conv3d="native")
+    assert variance_model.config.conv3d == "auto"
+    # The graph of a model built natively; the same variables, train/eval mode kept.
+    fresh = OmniStereoNet(native.config, nnx.Rngs(0))
+    fresh.eval()
+    assert nnx.graphdef(native) == nnx.graphdef(fresh)
+    assert nnx.graphdef(native) != nnx.graphdef(variance_model)
+    for a, b in zip(jax.tree_util.tree_leaves(nnx.state(native)),
+                    jax.tree_util.tree_leaves(nnx.state(variance_model))):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 0)
+    split = forward(variance_model, sur, m, rig, jnp.asarray(G8))   # 'auto': split on a CPU
+    out = forward(native, sur, m, rig, jnp.asarray(G8))
+    np.testing.assert_allclose(np.asarray(out["inv_distance"]),
+                               np.asarray(split["inv_distance"]), rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match="conv3d"):
+        with_conv3d(variance_model, "fast")
 
 
 def test_bad_inputs_raise_before_computing(variance_model):
@@ -225,7 +253,7 @@ def test_bad_inputs_raise_before_computing(variance_model):
         ((sur, m[:, :, 0], rig, cand), "masks must have shape"),
         ((sur, m, rig, cand[:7]), "needs 8 candidates"),
         ((sur, m, rig, cand[::-1]), "ascending"),
-        ((sur, m, rig, cand.at[0].set(0.0)), "positive"),
+        ((sur, m, rig, cand.at[0].set(0.0)), "positive|> 0"),
         ((sur, m, rig, cand.at[3].set(jnp.nan)), "finite"),
     ]
     for args, msg in cases:

@@ -34,7 +34,7 @@ from gijax.nn import (
     tangent_offsets,
     upsample2,
 )
-from gijax.nn.layers import Conv3D, conv3d_mode
+from gijax.nn.layers import Conv3D, kernel_init
 from gijax.nn.spherical import gather_taps, sampling_tables
 from gijax.sampling import bilinear_sample
 
@@ -109,6 +109,9 @@ def test_cpu_presets_keep_structure_and_validate():
         dataclasses.replace(base, output_hw=(16, 64))
     with pytest.raises(ValueError, match="loss"):
         dataclasses.replace(base, loss="l2")
+    with pytest.raises(ValueError, match="conv3d"):
+        dataclasses.replace(base, conv3d="fast")
+    assert base.conv3d == "auto"
     assert isinstance(hash(base), int)  # usable as a jit static argument
 
 
@@ -221,32 +224,79 @@ def test_upsample_matches_align_corners_false_reference():
                                np.ones((1, 2, 3)))
 
 
+def _conv_ranks(layer, x) -> set[int]:
+    """Ranks of the inputs of every convolution in ``layer(x)``'s program: 4 for 2-D, 5 for 3-D."""
+    jaxpr = jax.make_jaxpr(lambda v: layer(v))(x)
+    return {e.invars[0].aval.ndim for e in jaxpr.eqns if e.primitive.name == "conv_general_dilated"}
+
+
 def test_conv3d_split_lowering_equals_native():
     rng = np.random.default_rng(6)
     x = jnp.asarray(rng.normal(size=(2, 4, 6, 8, 3)), jnp.float32)
     for stride in (1, 2):
-        layer = Conv3D(3, 5, 3, stride, nnx.Rngs(stride), use_bias=True)
-        layer.bias[...] = jnp.arange(5.0)
-        with conv3d_mode("split"):
-            split = np.asarray(layer(x))
-        with conv3d_mode("native"):
-            native = np.asarray(layer(x))
-        ref = jax.lax.conv_general_dilated(x, layer.kernel[...], (stride,) * 3, [(1, 1)] * 3,
+        layers = {}
+        for lowering in ("split", "native"):
+            layers[lowering] = Conv3D(3, 5, 3, stride, nnx.Rngs(stride), use_bias=True,
+                                      lowering=lowering)
+            layers[lowering].bias[...] = jnp.arange(5.0)
+        kernel = layers["native"].kernel[...]
+        np.testing.assert_array_equal(np.asarray(layers["split"].kernel[...]), np.asarray(kernel))
+        split, native = (np.asarray(layers[m](x)) for m in ("split", "native"))
+        ref = jax.lax.conv_general_dilated(x, kernel, (stride,) * 3, [(1, 1)] * 3,
                                            dimension_numbers=("NDHWC", "DHWIO", "NDHWC"))
         assert split.shape == (2, 4 // stride, 6 // stride, 8 // stride, 5)
         np.testing.assert_allclose(native, np.asarray(ref) + np.arange(5.0), rtol=1e-5,
                                    atol=1e-5)
         np.testing.assert_allclose(split, native, rtol=1e-5, atol=1e-5)
-        grads = {}
-        for mode in ("split", "native"):
-            with conv3d_mode(mode):
-                grads[mode] = nnx.grad(lambda m: jnp.sum(jnp.sin(m(x))))(layer)
+        grads = {m: nnx.grad(lambda layer: jnp.sum(jnp.sin(layer(x))))(layers[m])
+                 for m in ("split", "native")}
         np.testing.assert_allclose(np.asarray(grads["split"]["kernel"][...]),
                                    np.asarray(grads["native"]["kernel"][...]), rtol=1e-4,
                                    atol=1e-4)
-    with pytest.raises(ValueError, match="mode"):
-        with conv3d_mode("fast"):
-            pass
+    assert _conv_ranks(layers["split"], x) == {4} and _conv_ranks(layers["native"], x) == {5}
+    with pytest.raises(ValueError, match="lowering"):
+        Conv3D(3, 5, 3, 1, nnx.Rngs(0), lowering="fast")
+
+
+def test_conv3d_lowering_is_seen_by_jit():
+    """The lowering is part of the module graph: one jitted function traces once per lowering,
+    each trace with that lowering's convolutions."""
+    x = jnp.asarray(np.random.default_rng(7).normal(size=(1, 2, 4, 4, 2)), jnp.float32)
+    traced = []
+
+    @nnx.jit
+    def apply(layer, v):
+        traced.append((layer.lowering, _conv_ranks(layer, v)))
+        return layer(v)
+
+    outs = {m: np.asarray(apply(Conv3D(2, 3, 3, 1, nnx.Rngs(0), lowering=m), x))
+            for m in ("split", "native", "split")}
+    assert traced == [("split", {4}), ("native", {5})]
+    np.testing.assert_allclose(outs["split"], outs["native"], rtol=1e-5, atol=1e-5)
+
+
+def test_kernel_init_is_truncated_lecun_normal_and_equal_under_jit():
+    from scipy import stats
+
+    shape = (3, 3, 3, 48, 96)  # fan_in 1296; 124 416 values: two chunks, the second cut
+    fan_in = 3 * 3 * 3 * 48
+    w = np.asarray(kernel_init(jax.random.key(3), shape))
+    assert w.shape == shape and w.dtype == np.float32
+    # LeCun normal: a unit normal truncated to [-2, 2], rescaled to std 1 / sqrt(fan_in).
+    unit = stats.truncnorm(-2.0, 2.0)
+    z = w.ravel() * math.sqrt(fan_in) * unit.std()
+    assert abs(z.std() - unit.std()) < 0.01 and abs(z.mean()) < 0.01
+    assert abs(w.std() * math.sqrt(fan_in) - 1.0) < 0.01
+    assert np.abs(z).max() <= 2.0 + 1e-5 and np.abs(z).max() > 1.99
+    assert stats.kstest(z, unit.cdf).pvalue > 1e-3
+    # The chunks are independent draws, not copies of one another.
+    chunk = 1 << 16
+    assert abs(np.corrcoef(z[:chunk // 2], z[chunk:chunk + chunk // 2])[0, 1]) < 0.02
+    other = np.asarray(kernel_init(jax.random.key(4), shape))
+    assert abs(np.corrcoef(w.ravel(), other.ravel())[0, 1]) < 0.02
+    # A module built under jit (or eval_shape) holds the same numbers as one built eagerly.
+    jitted = jax.jit(kernel_init, static_argnums=1)(jax.random.key(3), shape)
+    np.testing.assert_array_equal(np.asarray(jitted), w)
 
 
 def test_unet_shapes_and_validation():
@@ -447,7 +497,8 @@ def test_spherical_cpu_parts_jit_equals_eager_and_all_gradients_finite_nonzero()
     """G16VV-cpu layers (spherical features, variance cost, U-Net) on a smaller grid: the eager
     feature extractor equals the jitted one, and a loss on the regressed output sends a finite,
     non-zero gradient to every parameter."""
-    cfg = _small("G16VV-cpu")
+    # Native 3-D convs: the same numbers as the CPU's split lowering, faster to compile.
+    cfg = dataclasses.replace(_small("G16VV-cpu"), conv3d="native")
     parts = NetworkParts(cfg, nnx.Rngs(11))
     parts.train()
     images, coords, valid, cand = _inputs(cfg)
@@ -467,10 +518,9 @@ def test_spherical_cpu_parts_jit_equals_eager_and_all_gradients_finite_nonzero()
         model = nnx.merge(graphdef, state)
         return nnx.value_and_grad(loss_fn, has_aux=True)(model, imgs)
 
-    # Native 3-D convs and no LLVM optimisation: the same numbers, a third of the compile time.
-    with conv3d_mode("native"):
-        (loss, (jit_features, out)), grads = jax.jit(
-            step, compiler_options={"xla_backend_optimization_level": 0})(state, images)
+    # No LLVM optimisation: the same numbers, a third of the compile time.
+    (loss, (jit_features, out)), grads = jax.jit(
+        step, compiler_options={"xla_backend_optimization_level": 0})(state, images)
     params = nnx.state(parts, nnx.Param)
     assert eager_features.shape == (6, *cfg.feature_hw, cfg.feature_channels)
     np.testing.assert_allclose(np.asarray(jit_features), eager_features, rtol=1e-4, atol=1e-5)

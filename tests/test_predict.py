@@ -5,7 +5,6 @@ import json
 import math
 
 import cv2
-import jax
 import numpy as np
 import pytest
 
@@ -61,20 +60,29 @@ def test_predict_outputs(setup):
     assert np.all(out["distance"] >= 0.5 - 1e-4) and np.all(out["distance"] <= 100.0 + 1e-2)
     np.testing.assert_allclose(out["inv_distance"] * out["distance"], 1.0, rtol=1e-5)
     assert np.all(out["entropy"] >= 0) and np.all(out["entropy"] <= math.log(8) + 1e-5)
-    # Colours come from the camera nearest the reference (camera 0 = the reference here),
-    # from another camera where the rig's body hides the point from camera 0.
-    col = (out["colour"] * 255 + 0.5).astype(int)
-    from_cam = [np.all(col == c, axis=-1) for c in RGB]
-    assert np.all(from_cam[0] | from_cam[1] | from_cam[2] | np.all(col == 0, axis=-1))
-    assert from_cam[0].mean() > 0.8 and (from_cam[1] | from_cam[2]).any()
+    # Each colour is the mean over the cameras that see the point: with one flat colour per
+    # camera, the mean of one of the 7 non-empty camera subsets (or black, seen by none).
+    # Bilinear samples at a mask's edge blend towards black, so those pixels are left aside.
+    col = out["colour"] * 255
+    subsets = [np.mean(RGB[[i for i in range(3) if k >> i & 1]], 0) for k in range(1, 8)]
+    near = [np.all(np.abs(col - c) < 0.5, axis=-1) for c in subsets + [np.zeros(3)]]
+    hits = np.any(near, axis=0)
+    assert hits.mean() > 0.95
+    assert near[6].mean() > 0.5 and np.any(near[:6], axis=(1, 2)).sum() >= 2
     assert 0.3 < out["valid"].mean() <= 1.0
 
 
 def test_full_size_images_are_resized_for_the_model(setup):
     rig, model, images, out = setup
     big = np.broadcast_to(RGB[:, None, None], (3, 1024, 1024, 3))
-    out_big = predict(model, rig, big, None, G8)
+    notes = []
+    out_big = predict(model, rig, big, None, G8, log=notes.append)
     np.testing.assert_allclose(out_big["distance"], out["distance"], rtol=1e-5)
+    assert notes == ["note: images 1024 x 1024 resized to 64 x 64 (the rig's 1024 x 1024 "
+                     "scaled by 0.0625) for the model"]
+    # Another size of the same aspect is resized too (here enlarged).
+    out_mid = predict(model, rig, np.broadcast_to(RGB[:, None, None], (3, 48, 48, 3)), None, G8)
+    np.testing.assert_allclose(out_mid["distance"], out["distance"], rtol=1e-5)
 
 
 def test_predict_rejects_bad_input(setup):
@@ -86,7 +94,7 @@ def test_predict_rejects_bad_input(setup):
         ((images, np.ones((3, 64, 60)), G8), "masks must have shape"),
         ((images, None, G8[:7]), "needs 8 candidates"),
         ((images, None, G8[::-1]), "ascending"),
-        ((images, None, [-1.0] + G8[1:]), "positive"),
+        ((images, None, [-1.0] + G8[1:]), "> 0 m|positive"),
     ]
     for args, msg in cases:
         with pytest.raises(ValueError, match=msg):
@@ -145,9 +153,41 @@ def test_cli(tmp_path, capsys):
     dist = np.load(out / "distance.npy")
     assert dist.shape == (16, 64) and np.nanmin(dist) >= 0.75 - 1e-4
     assert (out / "points.ply").stat().st_size > 100
+    # The colour panorama: flat camera colours average to flat colours where valid.
+    rgb = cv2.imread(str(out / "rgb.png"))[..., ::-1]
+    valid = np.load(out / "valid.npy")
+    assert rgb.shape == (16, 64, 3) and np.all(rgb[~valid] == 0) and rgb[valid].max() > 60
+    assert (out / "uncertainty.png").exists()
     rc = main(["predict", "--preset", str(cfg), "--rig", "paper-train", "--images", *files[:2],
                "--out", str(out)])
     assert rc == 1 and "3 cameras but 2 images" in capsys.readouterr().err
     rc = main(["predict", "--preset", "G99", "--rig", "paper-train", "--images", *files,
                "--out", str(out)])
     assert rc == 1 and "unknown model preset" in capsys.readouterr().err
+
+
+def test_read_image_gives_rgb_uint8_from_any_file(tmp_path):
+    """cv2 writes BGR: the reader returns RGB, drops alpha, repeats grey, scales 16 bits."""
+    import cv2
+
+    from gijax.data.images import read_image, read_mask
+
+    rgb = np.zeros((2, 3, 3), np.uint8)
+    rgb[..., 0], rgb[..., 1], rgb[..., 2] = 10, 20, 30
+    cv2.imwrite(str(tmp_path / "c.png"), rgb[..., ::-1])
+    np.testing.assert_array_equal(read_image(tmp_path / "c.png"), rgb)
+    bgra = np.concatenate([rgb[..., ::-1], np.full((2, 3, 1), 7, np.uint8)], -1)
+    cv2.imwrite(str(tmp_path / "a.png"), bgra)
+    np.testing.assert_array_equal(read_image(tmp_path / "a.png"), rgb)
+    grey = np.array([[0, 5, 255]], np.uint8)
+    cv2.imwrite(str(tmp_path / "g.png"), grey)
+    np.testing.assert_array_equal(read_image(tmp_path / "g.png"), np.repeat(grey[..., None], 3, -1))
+    np.testing.assert_array_equal(read_mask(tmp_path / "g.png"), [[0.0, 1.0, 1.0]])
+    wide = np.array([[[0, 257 * 100, 65535]]], np.uint16)          # BGR
+    cv2.imwrite(str(tmp_path / "w.png"), wide)
+    np.testing.assert_array_equal(read_image(tmp_path / "w.png"), [[[255, 100, 0]]])
+    (tmp_path / "bad.png").write_bytes(b"not an image")
+    with pytest.raises(ValueError, match="not a readable image"):
+        read_image(tmp_path / "bad.png")
+    with pytest.raises(FileNotFoundError, match="no such image"):
+        read_image(tmp_path / "missing.png")

@@ -24,7 +24,16 @@ def test_rtss_predict_from_files_recovers_a_known_distance(tmp_path, capsys):
     code = main(["predict", "--method", "rtss", "--rtss-preset", "RS-E16", "--rig", "paper-train",
                  "--images", *paths, "--out", str(out)])
     assert code == 0
-    assert "classical baseline RS-E16" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "classical baseline RS-E16" in text
+    # The size policy's note, and the default candidate list named with its count.
+    assert "images are 128 x 128; the rig's 1024 x 1024 lenses are rescaled by 0.125" in text
+    assert "RS-E16's own list (16 even in inverse distance, 0.5-100 m); 16 from 0.500" in text
+    assert "over valid pixels" in text
+    # No uncertainty map (the baseline has no candidate distribution); a colour panorama.
+    assert not (out / "uncertainty.png").exists()
+    rgb = cv2.imread(str(out / "rgb.png"))
+    assert rgb.shape == (160, 640, 3) and rgb.std() > 5
     distance = np.load(out / "distance.npy")
     meta = (out / "prediction.json").read_text()
     assert distance.shape == (160, 640) and "candidates_m" in meta

@@ -156,7 +156,7 @@ def test_import_weights_cli_makes_a_bundle_that_runs_like_the_release(tmp_path):
     the bundle loads through the loader every --ckpt uses, takes RGB, and reproduces the
     release's inverse distance on the fixture's BGR inputs."""
     from gijax.cli import main
-    from gijax.predict import load_model
+    from gijax.store import load_model
 
     meta, data, _ = load_fixture("g16vv_small")
     out = tmp_path / "bundle"
@@ -167,7 +167,7 @@ def test_import_weights_cli_makes_a_bundle_that_runs_like_the_release(tmp_path):
     for s in sizes:
         argv += ["--override", s]
     assert main(argv) == 0
-    model, candidates = load_model(out)
+    model, _, candidates = load_model(out)
     # The stored 96 / d (float32, up to 9e-7 off here) is recognised as the closed-form G16 and
     # replaced by it: exact up to the float32 the bundle keeps.
     np.testing.assert_allclose(candidates, data["candidates"], rtol=1e-7)

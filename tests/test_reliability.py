@@ -188,7 +188,7 @@ def test_run_folder_and_bundle_have_one_writer(tmp_path, capsys):
 
 def test_damaged_checkpoint_falls_back_quietly_and_eval_changes_nothing(script, tmp_path,
                                                                         caplog, recwarn):
-    from gijax.train.trainer import load_for_inference
+    from gijax.store import load_for_inference
 
     run = tmp_path / "run"
     r = run_child(script, run, "--steps", "4", cache=CACHE)

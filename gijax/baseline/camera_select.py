@@ -18,6 +18,7 @@ import jax.numpy as jnp
 
 from gijax.baseline.views import MatchView, sample_mask_nearest, view_pixels, view_rays
 from gijax.geometry.rig import Rig, is_homogeneous, rig_to_camera
+from gijax.numerics import safe_norm
 
 Array = jax.Array
 
@@ -91,7 +92,7 @@ def select_best_camera(rig: Rig, view: MatchView, ref, candidates: Array,
     def body(j, carry):
         best, best_disp = carry
         px, ok = project_into_view(rig, view, j, item_at(view_masks, j), pts)
-        disp = jnp.linalg.norm(px[0] - px[1], axis=-1)
+        disp = safe_norm(px[0] - px[1])
         usable = ok[0] & ok[1] & (disp > min_displacement) & ref_ok & (j != ref)
         # Only a strictly larger displacement replaces: ties keep the lower index.
         better = usable & (disp > best_disp)

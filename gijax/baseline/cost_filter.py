@@ -16,18 +16,15 @@ value: ``((1 - alpha) c_p x_p + alpha c_up x_up) / ((1 - alpha) c_p + alpha c_up
 
 from __future__ import annotations
 
-import numpy as np
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from gijax.numerics import safe_denominator
 
 Array = jax.Array
-_TINY = 1e-30
-
-
-def _safe(den: Array) -> Array:
-    """Denominator for a normalised weighted sum: exact wherever any weight is non-zero."""
-    return jnp.where(den > _TINY, den, 1.0)
-
 
 def _range_weight(a: Array, b: Array, sigma: float) -> Array:
     return jnp.exp(-jnp.sum((a - b) ** 2, axis=-1) / (2.0 * sigma * sigma))
@@ -44,11 +41,11 @@ def _down(cost: Array, conf: Array, guide: Array, sigma: float):
     g4 = jnp.stack([guide[0::2, 0::2], guide[0::2, 1::2], guide[1::2, 0::2], guide[1::2, 1::2]],
                    axis=2)  # (h, w, 4, 3)
     c4 = _blocks(conf)  # (h, w, 4)
-    g_mean = jnp.sum(g4 * c4[..., None], 2) / _safe(jnp.sum(c4, 2))[..., None]
+    g_mean = jnp.sum(g4 * c4[..., None], 2) / safe_denominator(jnp.sum(c4, 2))[..., None]
     w4 = c4 * _range_weight(g4, g_mean[:, :, None], sigma)
     wsum = jnp.sum(w4, -1)
     x4 = _blocks(cost)  # (D, h, w, 4)
-    coarse = jnp.sum(x4 * w4, -1) / _safe(wsum)
+    coarse = jnp.sum(x4 * w4, -1) / safe_denominator(wsum)
     # Guides where the block has no confidence fall back to the plain block mean.
     g_plain = jnp.mean(g4, 2)
     g_coarse = jnp.where((jnp.sum(c4, 2) > 0)[..., None], g_mean, g_plain)
@@ -89,14 +86,16 @@ def _up(fine_cost: Array, fine_conf: Array, fine_guide: Array, coarse_cost: Arra
                 fine_guide, nb[..., 1:4], sigma)
             num = num + wgt[..., None] * nb[..., 4:]
             den = den + wgt
-    up = jnp.moveaxis(num / _safe(den)[..., None], -1, 0)
+    up = jnp.moveaxis(num / safe_denominator(den)[..., None], -1, 0)
     a_f = (1.0 - alpha) * fine_conf
     a_u = alpha * den
     total = a_f + a_u
-    blended = (a_f * fine_cost + a_u * up) / _safe(total)
+    blended = (a_f * fine_cost + a_u * up) / safe_denominator(total)
     return blended, total
 
 
+# One compiled program per setting for eager callers (the pyramid is many small operations).
+@functools.partial(jax.jit, static_argnames=("levels", "sigma", "alpha"))
 def edge_aware_filter(cost: Array, confidence: Array, guide: Array, levels: int = 4,
                       sigma: float = 0.1, alpha: float = 0.5) -> Array:
     """Filter every cost slice with the guided pyramid.
@@ -110,7 +109,8 @@ def edge_aware_filter(cost: Array, confidence: Array, guide: Array, levels: int 
       alpha: share of the coarser level in every up-blend (0 = no smoothing, 1 = coarse only).
 
     Returns the filtered cost (D, H, W). Pixels with zero confidence and no confident
-    neighbourhood keep their input cost.
+    neighbourhood keep their input cost. Traceable (jit, vmap, grad in the cost, confidence and
+    guide); ``levels``, ``sigma`` and ``alpha`` are static.
     """
     if levels < 0:
         raise ValueError(f"filter levels must be >= 0; found {levels}")

@@ -34,6 +34,7 @@ from gijax.baseline.matching_cost import COST_KINDS, matching_cost
 from gijax.baseline.stitch import stitch
 from gijax.baseline.views import MatchView, view_image
 from gijax.baseline.winner import winner_take_all
+from gijax.candidates.validation import guard_candidates
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig, is_homogeneous, map_cameras
 from gijax.sampling import bilinear_sample
@@ -124,23 +125,43 @@ RTSS_PRESETS["RS-E32-AD"] = RTSS_PRESETS["RS-E32"].replace(name="RS-E32-AD", cos
 
 def get_rtss_preset(name: str) -> RTSSConfig:
     """A preset by name (RS-E16, RS-G16, RS-E32, RS-G32; RS-E32-AD = RS-E32 with the paper's
-    1x1 absolute-difference cost)."""
+    1x1 absolute-difference cost); a lookup of static settings, nothing to trace."""
     if name not in RTSS_PRESETS:
         raise ValueError(f"unknown RTSS preset {name!r}; expected one of {sorted(RTSS_PRESETS)}")
     return RTSS_PRESETS[name]
 
 
 def preset_candidates(rig: Rig, config: RTSSConfig) -> Array:
-    """The candidate list (D,) metres of a configuration: EV, or GI derived from the rig."""
+    """The candidate list (D,) metres of a configuration: EV, or GI derived from the rig (in the
+    default float dtype; traceable in the rig like :func:`gijax.candidates.rig_gi_candidates`)."""
     from gijax import candidates as cand_lib
 
     kind = "ev" if config.candidates == "ev" else "gi"
-    return jnp.asarray(cand_lib.candidates_for(kind, config.num_candidates, rig=rig,
-                                               d_min=config.d_min, d_max=config.d_max),
-                       jnp.float32)
+    return cand_lib.candidates_for(kind, config.num_candidates, rig=rig, d_min=config.d_min,
+                                   d_max=config.d_max)
+
+
+def choose_candidates(spec: str | None, rig: Rig, config: RTSSConfig) -> tuple[np.ndarray, str]:
+    """``(candidates (D,) float64 metres, description)`` for a command line's ``--candidates``.
+
+    The baseline has no training list: without a spec (or with 'train') it runs its preset's
+    own list; any other spec goes through :func:`gijax.candidates.spec.resolve_candidates`, and
+    since the baseline's candidate count is free, a file of any length is taken as it is. Eager
+    (it may read a file)."""
+    from gijax.candidates.spec import resolve_candidates
+
+    if spec in (None, "train"):
+        kind = "even in inverse distance" if config.candidates == "ev" else "GI for the rig"
+        return (np.asarray(preset_candidates(rig, config), np.float64),
+                f"{config.name}'s own list ({config.num_candidates} {kind}, "
+                f"{config.d_min:g}-{config.d_max:g} m)")
+    return resolve_candidates(spec, rig, config.num_candidates, config.d_min, config.d_max,
+                              any_count=True)
 
 
 def _check_inputs(rig: Rig, images, masks, candidates, config: RTSSConfig):
+    # Shapes raise in every regime; candidate values raise when concrete and are a checkify
+    # debug check under a trace.
     n = rig.num_cameras
     if images.ndim != 4 or images.shape[0] != n or images.shape[-1] != 3:
         raise ValueError(f"images must have shape (Ncam={n}, h, w, 3); found {tuple(images.shape)}")
@@ -151,9 +172,7 @@ def _check_inputs(rig: Rig, images, masks, candidates, config: RTSSConfig):
     if masks is not None and tuple(masks.shape) != tuple(images.shape[:3]):
         raise ValueError(f"masks must have shape {tuple(images.shape[:3])}; "
                          f"found {tuple(masks.shape)}")
-    if candidates.ndim != 1 or candidates.shape[0] < 3:
-        raise ValueError(f"candidates must be a 1-D list of >= 3 distances; found shape "
-                         f"{tuple(candidates.shape)}")
+    guard_candidates(candidates, min_count=3)
     refs = tuple(range(n)) if config.references is None else tuple(config.references)
     if not refs or any(not 0 <= r < n for r in refs):
         raise ValueError(f"RTSSConfig.references {config.references} must name cameras 0..{n - 1}")
@@ -216,7 +235,16 @@ def reference_map(rig: Rig, view: MatchView, ref, view_images, view_masks, sizes
 
 
 @functools.partial(jax.jit, static_argnames=("pano", "config"))
-def _rtss(rig, images, masks, candidates, pano, config):
+def sphere_sweep(rig: Rig, images: Array, masks: Array, candidates: Array, pano: Panorama,
+                 config: RTSSConfig) -> dict:
+    """The compiled sphere-sweep pipeline behind :func:`rtss_predict` (jitted; ``pano`` and
+    ``config`` static), for callers that lower or compose it themselves.
+
+    ``images`` (Ncam, h, w, 3) float in [0, 1], ``masks`` (Ncam, h, w) float (1 = valid),
+    ``candidates`` (D,) ascending metres. Returns the dict of :func:`rtss_predict` with
+    ``views`` always included. Shapes are checked when traced; values are not (see
+    :func:`rtss_predict`).
+    """
     refs = _check_inputs(rig, images, masks, candidates, config)
     view = MatchView(config.match_view, config.match_size)
     images = images.astype(jnp.float32)
@@ -251,6 +279,7 @@ def _rtss(rig, images, masks, candidates, pano, config):
                 visible=out["visible"], views=maps)
 
 
+
 def rtss_predict(rig: Rig, images, masks, candidates, pano: Panorama = Panorama.hemisphere(160, 640),
                  config: RTSSConfig = RTSSConfig(), return_views: bool = False) -> dict:
     """Sphere-sweep stereo for any rig, camera models and candidate list.
@@ -270,6 +299,11 @@ def rtss_predict(rig: Rig, images, masks, candidates, pano: Panorama = Panorama.
     Returns dict of jax arrays over the panorama (Hp, Wp): ``inv_distance`` (1/m) and
     ``distance`` (m), both NaN where ``valid`` is False; ``valid`` (bool); ``visible`` (bool,
     some pair of cameras sees the ray at some candidate distance).
+
+    Traceable (jit, vmap over images and masks, grad in the images where the winner and its
+    neighbours do not switch): shapes raise ValueError in every case; the candidate list is
+    checked (:func:`gijax.candidates.check_candidates`) when concrete and by a checkify debug
+    check when traced.
     """
     images = jnp.asarray(images)
     _check_inputs(rig, images, masks, jnp.asarray(candidates), config)
@@ -285,11 +319,7 @@ def rtss_predict(rig: Rig, images, masks, candidates, pano: Panorama = Panorama.
             raise ValueError(f"images have shape {tuple(images.shape)} but the rig's cameras "
                              f"and masks are {tuple(masks.shape)}")
     masks = jnp.asarray(masks, jnp.float32)
-    candidates = jnp.asarray(candidates)
-    if candidates.ndim == 1 and candidates.shape[0] > 1 and not bool(
-            np.all(np.diff(np.asarray(candidates)) > 0)):
-        raise ValueError("candidates must be strictly ascending distances in metres")
-    out = _rtss(rig, images, masks, candidates, pano, config)
+    out = sphere_sweep(rig, images, masks, jnp.asarray(candidates), pano, config)
     if not return_views:
         out.pop("views")
     return out
@@ -303,7 +333,7 @@ def rtss_predict_sample(rig: Rig, sample: dict, preset_name: str = "RS-E32",
     ``pano_distance`` (Hp, Wp), whose shape sets the output panorama (hemisphere; 160 x 640
     when absent). The matching size defaults to the smaller of the preset's size and the
     cameras' image width. ``overrides`` replace preset fields; ``candidates`` replaces the
-    preset's list. Returns numpy arrays (see :func:`rtss_predict`).
+    preset's list. Returns numpy arrays (see :func:`rtss_predict`): an eager edge, not traced.
     """
     config = get_rtss_preset(preset_name)
     if "images" not in sample:

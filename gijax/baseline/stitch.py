@@ -35,9 +35,12 @@ from gijax.baseline.views import MatchView, sample_mask_nearest, view_pixels
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.panorama import Panorama, ray_grid
 from gijax.geometry.rig import Rig, map_cameras, rig_to_camera
+from gijax.numerics import safe_denominator, safe_norm
 from gijax.sampling import bilinear_sample
 
 Array = jax.Array
+# Metres: a marched point this close to a camera centre is treated as this far from it.
+_MIN_RANGE = 1e-9
 
 
 def pair_visibility(rig: Rig, masks: Array, candidates: Array, pano: Panorama) -> Array:
@@ -71,7 +74,7 @@ def _probe_camera(rig: Rig, view: MatchView, ref, packed: Array, dirs: Array, s)
     good = ok & (den > 0.5)
     safe = jnp.where(good, den, 1.0)
     rho = vals[..., 0] / safe
-    dist = jnp.maximum(jnp.linalg.norm(pc, axis=-1), 1e-9)
+    dist = jnp.maximum(safe_norm(pc), _MIN_RANGE)
     q = 1.0 / dist
     # The camera ray through the point, in the rig frame, against the panorama ray.
     cos = jnp.sum((pc @ rig.rotations[ref].T) * dirs, -1) / dist
@@ -196,7 +199,7 @@ def blend_estimates(inv: Array, valid: Array, weight: Array, tol, rel: float = 0
     best = jnp.argmax(jnp.where(valid, support, -1.0), 0)
     member = jnp.take_along_axis(close, best[None, None], 0)[0] & valid
     wm = w * member
-    return jnp.sum(wm * inv, 0) / jnp.maximum(jnp.sum(wm, 0), 1e-12)
+    return jnp.sum(wm * inv, 0) / safe_denominator(jnp.sum(wm, 0))
 
 
 def stitch(rig: Rig, view: MatchView, refs: Sequence[int], inv_maps, valid_maps, weight_maps,

@@ -51,21 +51,13 @@ def view_camera(view: MatchView, cam):
     return cam_lib.scale_camera(cam, view.size / cam.width)
 
 
-def view_shape(view: MatchView, cam) -> tuple[int, int]:
-    """(height, width) of the matching image of camera ``cam``."""
-    if view.kind == "fisheye":
-        v = view_camera(view, cam)
-        return (v.height, v.width)
-    return _panorama(view).shape
-
-
 def view_rays(view: MatchView, cam) -> tuple[Array, Array]:
     """Unit rays (H, W, 3) of every matching-image pixel and whether the lens sees them (H, W)."""
     if view.kind == "fisheye":
         v = view_camera(view, cam)
         rays, ok = cam_lib.unproject(v, cam_lib.pixel_grid(v.width, v.height))
         return rays, ok
-    rays = ray_grid(_panorama(view))
+    rays = ray_grid(_panorama(view), jnp.result_type(cam.fx))
     _, ok = cam_lib.project(cam, rays)
     return rays, ok
 

@@ -9,8 +9,7 @@ import subprocess
 import sys
 from importlib import metadata
 from pathlib import Path
-
-import psutil
+from typing import Sequence
 
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "numpy", "onnx", "onnxruntime", "jax2onnx")
 
@@ -27,14 +26,18 @@ def cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
-def git_revision(root: str | os.PathLike | None = None) -> dict:
-    """``commit`` (hash) and ``dirty`` (uncommitted changes) of the checkout at ``root``
-    (default: the one holding this package); ``commit`` None outside a git checkout."""
+def git_revision(root: str | os.PathLike | None = None, ignore: Sequence[str] = ()) -> dict:
+    """``commit`` (hash) and ``dirty`` (uncommitted changes to tracked files) of the checkout at
+    ``root`` (default: the one holding this package); ``commit`` None outside a git checkout.
+    Changes under the paths in ``ignore`` (relative to ``root``; e.g. the result files a script
+    rewrites itself) do not count as dirty."""
     root = Path(root) if root else Path(__file__).resolve().parents[2]
+    pathspec = ["--", ".", *(f":!{p}" for p in ignore)] if ignore else []
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,
                                 text=True, timeout=10).stdout.strip() or None
-        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no",
+                                 *pathspec],
                                 cwd=root, capture_output=True, text=True, timeout=10).stdout
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
@@ -61,6 +64,7 @@ def load_average() -> list[float] | None:
 def machine_info(device=None) -> dict:
     """Host, CPU, memory, load, the JAX device, library versions and git revision."""
     import jax
+    import psutil
 
     dev = device if device is not None else jax.devices()[0]
     return {

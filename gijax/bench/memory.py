@@ -9,6 +9,8 @@
 * On the CPU, the process's resident set (RSS), polled in a thread while the case runs;
   freed heap pages are handed back to the OS first (``malloc_trim``) so that a case does not
   hide its growth in memory an earlier case freed.
+* For a whole command (``gijax eval``, the experiments): the process's resident-set
+  high-water mark and the device allocator's.
 """
 
 from __future__ import annotations
@@ -17,13 +19,13 @@ import ctypes
 import threading
 import time
 
-import psutil
-
 MIB = 2**20
 
 
 def rss_bytes() -> int:
     """Resident set size of this process, bytes."""
+    import psutil
+
     return int(psutil.Process().memory_info().rss)
 
 
@@ -74,17 +76,36 @@ class PeakRSS:
 
 
 def compiled_memory(compiled) -> dict:
-    """XLA's memory accounting of a compiled program, bytes (empty dict when unavailable)."""
-    mem = compiled.memory_analysis()
+    """XLA's memory accounting of a compiled program, bytes (empty dict when unavailable).
+
+    ``peak_bytes`` is arguments + outputs + temporaries - aliased bytes. Where the backend
+    reports it, ``reported_peak_bytes`` is XLA's own figure from its heap simulation of the
+    program's buffers, which can be lower (buffers whose lifetimes do not overlap share it).
+    """
+    try:
+        mem = compiled.memory_analysis()
+    except (AttributeError, NotImplementedError, RuntimeError):
+        return {}
     if mem is None:
         return {}
     args = int(mem.argument_size_in_bytes)
     out = int(mem.output_size_in_bytes)
     temp = int(mem.temp_size_in_bytes)
     alias = int(mem.alias_size_in_bytes)
-    return {"argument_bytes": args, "output_bytes": out, "temp_bytes": temp,
-            "alias_bytes": alias, "peak_bytes": args + out + temp - alias,
-            "code_bytes": int(mem.generated_code_size_in_bytes)}
+    result = {"argument_bytes": args, "output_bytes": out, "temp_bytes": temp,
+              "alias_bytes": alias, "peak_bytes": args + out + temp - alias,
+              "code_bytes": int(mem.generated_code_size_in_bytes)}
+    reported = int(getattr(mem, "peak_memory_in_bytes", 0) or 0)
+    if reported:
+        result["reported_peak_bytes"] = reported
+    return result
+
+
+def host_peak_rss_mib() -> float:
+    """The process's resident-set high-water mark since it started (``ru_maxrss``), MiB."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def device_memory(device=None) -> dict:
@@ -96,6 +117,13 @@ def device_memory(device=None) -> dict:
     stats = dev.memory_stats()
     return {} if stats is None else {k: int(v) for k, v in stats.items()
                                      if isinstance(v, (int, float))}
+
+
+def device_peak_mib(device=None) -> float | None:
+    """The accelerator allocator's high-water mark (``peak_bytes_in_use``), MiB; None on a
+    backend that reports none (the CPU)."""
+    peak = device_memory(device).get("peak_bytes_in_use")
+    return None if peak is None else peak / MIB
 
 
 class CaseMemory:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Callable, Sequence, Union
 
 import numpy as np
+
+from gijax.io.paths import write_text_atomic
 
 # A column: (header, key) or (header, key, format spec or callable value -> str).
 Column = Union[tuple[str, str], tuple[str, str, Union[str, Callable]]]
@@ -32,15 +33,7 @@ def _plain(obj):
 
 def _write_atomic(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_text_atomic(path, text)
 
 
 def write_json(path: str | os.PathLike, obj) -> Path:
@@ -69,24 +62,31 @@ def format_value(value, spec: Union[str, Callable, None] = None) -> str:
     return str(value)
 
 
+def markdown_grid(header: Sequence[str], rows: Sequence[Sequence[str]],
+                  numeric: Sequence[bool] | None = None) -> str:
+    """A GitHub Markdown table of ready-made cells: ``header`` and one list of strings per row;
+    columns marked in ``numeric`` are right-aligned. A '|' inside a cell is escaped."""
+    numeric = [False] * len(header) if numeric is None else list(numeric)
+    if not header or len(numeric) != len(header):
+        raise ValueError(f"markdown_grid needs a header and one alignment per column; found "
+                         f"{len(header)} headers and {len(numeric)} alignments")
+    lines = ["| " + " | ".join(header) + " |",
+             "| " + " | ".join("---:" if n else "---" for n in numeric) + " |"]
+    for row in rows:
+        lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in row) + " |")
+    return "\n".join(lines)
+
+
 def markdown_table(rows: Sequence[dict], columns: Sequence[Column]) -> str:
     """A GitHub Markdown table: one line per row, cells ``row[key]`` formatted per column
     (a missing key is an empty cell); numbers are right-aligned."""
     if not columns:
         raise ValueError("markdown_table needs at least one column")
-    heads = [c[0] for c in columns]
-    lines = ["| " + " | ".join(heads) + " |"]
-    aligns = []
-    for c in columns:
-        numeric = any(isinstance(r.get(c[1]), (int, float, np.number))
-                      and not isinstance(r.get(c[1]), bool) for r in rows)
-        aligns.append("---:" if numeric else "---")
-    lines.append("| " + " | ".join(aligns) + " |")
-    for r in rows:
-        cells = [format_value(r.get(c[1]), c[2] if len(c) > 2 else None).replace("|", "\\|")
-                 for c in columns]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    numeric = [any(isinstance(r.get(c[1]), (int, float, np.number))
+                   and not isinstance(r.get(c[1]), bool) for r in rows) for c in columns]
+    cells = [[format_value(r.get(c[1]), c[2] if len(c) > 2 else None) for c in columns]
+             for r in rows]
+    return markdown_grid([c[0] for c in columns], cells, numeric)
 
 
 def text_table(rows: Sequence[dict], columns: Sequence[Column]) -> str:

@@ -16,9 +16,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from gijax.candidates.validation import check_baseline, check_count, check_range
-
-TRAIN_BASELINE = 0.3095015413531889
-"""Baseline (m) behind the released G16 and G8 lists: the training rig's camera spacing."""
+from gijax.geometry.layouts import TRAIN_BASELINE
 
 
 def _float_dtype():
@@ -31,7 +29,11 @@ def _pin_ends(d, d_min, d_max):
 
 
 def ev_candidates(n: int, d_min=0.5, d_max=100.0):
-    """n distances (m), ascending, evenly spaced in inverse distance between 1/d_min and 1/d_max."""
+    """n distances (m), ascending, evenly spaced in inverse distance between 1/d_min and 1/d_max.
+
+    Traceable in ``d_min`` and ``d_max`` (``n`` is static); the range is checked eagerly when
+    concrete, by a checkify debug check when traced.
+    """
     n = check_count(n)
     check_range(d_min, d_max)
     dt = _float_dtype()
@@ -46,7 +48,9 @@ def gi_candidates(n: int, d_min=0.5, d_max=100.0, baseline=TRAIN_BASELINE):
     """n distances (m), ascending, with equal parallax-angle steps for one perpendicular baseline.
 
     ``baseline`` in metres. ``theta_i = linspace(atan(b/d_min), atan(b/d_max), n)``,
-    ``d_i = b / tan(theta_i)``. Differentiable in ``baseline``, ``d_min`` and ``d_max``.
+    ``d_i = b / tan(theta_i)``. Traceable (jit, vmap, grad) in ``baseline``, ``d_min`` and
+    ``d_max`` (``n`` is static); the arguments are checked eagerly when concrete, by checkify
+    debug checks when traced.
     """
     n = check_count(n)
     check_range(d_min, d_max)

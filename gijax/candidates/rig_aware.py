@@ -83,11 +83,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gijax.candidates import parallax as par
 from gijax.candidates.closed_form import _float_dtype
-from gijax.candidates.validation import check_count, check_range, is_concrete
-from gijax.geometry import cameras as cam_lib
-from gijax.geometry.panorama import Panorama, lonlat_grid, ray_grid
+from gijax.candidates.validation import (check_count, check_range, guard_candidates,
+                                         is_concrete, require)
+from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig, map_cameras, project_rig_points
+from gijax.numerics import guard_floor, safe_denominator, safe_div, unit
 
 Array = jax.Array
 
@@ -95,9 +97,13 @@ DEFAULT_PANO = Panorama.hemisphere(8, 32)
 """Panorama rays the displacement is averaged over (256 rays; see docs/candidates.md for the
 effect of the resolution)."""
 MEASURES = ("pixels", "angle")
+MEASURE_UNITS = {"pixels": "px", "angle": "rad"}
+"""Unit of the displacements of each measure (for labels and reports)."""
 _NUM_NODES = 24
 _HERMITE_ITERS = 4
-_TINY = 1e-30
+# A camera closer than this to the reference point (metres) sees every swept point along the
+# same ray: it has no parallax.
+_MIN_OFFSET = 1e-6
 
 
 @jax.tree_util.register_dataclass
@@ -121,16 +127,6 @@ class RigTerms:
         return jnp.sum(self.weight)
 
 
-def _safe_norm(x: Array, axis=-1) -> Array:
-    sq = jnp.sum(x * x, axis=axis)
-    return jnp.sqrt(jnp.where(sq > _TINY, sq, _TINY))
-
-
-def _safe_div(num: Array, den: Array) -> Array:
-    ok = jnp.abs(den) > _TINY
-    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
-
-
 def _check_options(pano, measure: str, samples: int) -> None:
     if not isinstance(pano, Panorama):
         raise ValueError(f"pano must be a gijax Panorama; found {type(pano).__name__}")
@@ -141,11 +137,18 @@ def _check_options(pano, measure: str, samples: int) -> None:
 
 
 def _check_rays(rays) -> None:
-    if rays is None or not is_concrete(rays):
+    """(R, 3) finite non-zero directions; the shape always, the values when concrete."""
+    if rays is None:
+        return
+    shape = tuple(np.shape(rays))
+    if len(shape) != 2 or shape[1] != 3 or shape[0] == 0:
+        raise ValueError(f"rays must be an (R, 3) array of directions; found shape {shape}")
+    if not is_concrete(rays):
+        r = jnp.asarray(rays)
+        require(jnp.all(jnp.isfinite(r)) & jnp.all(jnp.sum(r * r, axis=1) > 0),
+                "rays must be finite, non-zero directions; found {r}", r=r)
         return
     r = np.asarray(rays, np.float64)
-    if r.ndim != 2 or r.shape[1] != 3 or r.shape[0] == 0:
-        raise ValueError(f"rays must be an (R, 3) array of directions; found shape {r.shape}")
     if not np.all(np.isfinite(r)) or np.any(np.linalg.norm(r, axis=1) == 0.0):
         raise ValueError("rays must be finite, non-zero directions")
 
@@ -160,41 +163,33 @@ def as_float_rig(rig: Rig) -> Rig:
                        reference=cast(rig.reference))
 
 
+@functools.partial(jax.jit, static_argnames=("pano", "measure", "samples"))
 def rig_terms(rig: Rig, d_min, d_max, pano: Panorama = DEFAULT_PANO, measure: str = "pixels",
               samples: int = 4, rays=None) -> RigTerms:
-    """The ray/camera terms ``(p, q, W, s)`` of the cumulative displacement (pure, jit-able).
+    """The ray/camera terms ``(p, q, W, s)`` of the cumulative displacement (pure; jitted, with
+    ``pano``, ``measure`` and ``samples`` static, so that eager callers run one program).
 
     ``rays``: optional (R, 3) rig-frame directions used instead of the panorama grid, with equal
     weights (for a partial view, or to study a single direction family).
     """
     dt = rig.translations.dtype
     if rays is None:
-        rays = ray_grid(pano, dt).reshape(-1, 3)  # (R, 3)
-        _, lat = lonlat_grid(pano, dt)
-        dlat = (pano.lat_max - pano.lat_min) / pano.height
-        solid = (jnp.cos(lat) * dlat * (2.0 * math.pi / pano.width)).reshape(-1)  # steradians
+        rays, solid = par.panorama_rays(pano, dt)
     else:
-        rays = jnp.asarray(rays, dt).reshape(-1, 3)
-        rays = rays / _safe_norm(rays)[:, None]
+        rays = unit(jnp.asarray(rays, dt).reshape(-1, 3))
         solid = jnp.full(rays.shape[:1], 1.0 / rays.shape[0], dt)
 
-    a = rig.reference[None, :] - rig.translations  # (C, 3)
-    p = a @ rays.T  # (C, R)
-    q = _safe_norm(jnp.cross(a[:, None, :], rays[None, :, :]))  # (C, R)
+    a, p, q = par.parallax_offsets(rig.reference, rig.translations, rays)  # (C, 3), (C, R)
 
     # Visibility at distances spread geometrically over the range.
-    frac = jnp.linspace(0.0, 1.0, samples, dtype=dt)
-    ds = jnp.exp(jnp.log(d_min) + frac * (jnp.log(d_max) - jnp.log(d_min)))
+    ds = par.sample_distances(d_min, d_max, samples, dt)
     pts = rig.reference + ds[:, None, None] * rays[None]  # (S, R, 3)
     _, vis = project_rig_points(rig, jax.lax.stop_gradient(pts))  # (C, S, R)
     seen = jnp.all(vis, axis=1)  # (C, R)
     matched = jnp.sum(seen, axis=0) >= 2  # (R,)
 
-    # Closest approach of the swept segment to the camera centre.
-    d_star = jnp.clip(-p, d_min, d_max)
-    closest = jnp.sqrt(q * q + (p + d_star) ** 2)
-    clear = closest >= 0.5 * d_min
-    parallax = _safe_norm(a) > 1e-6  # (C,)
+    clear = par.closest_approach(p, q, d_min, d_max) >= 0.5 * d_min
+    parallax = jnp.sum(a * a, axis=-1) > _MIN_OFFSET**2  # (C,)
 
     keep = seen & matched[None] & clear & parallax[:, None]
     weight = jnp.where(keep, solid[None], 0.0)
@@ -202,15 +197,9 @@ def rig_terms(rig: Rig, d_min, d_max, pano: Panorama = DEFAULT_PANO, measure: st
     if measure == "angle":
         scale = jnp.ones_like(q)
     else:
-        move = _safe_div(a[:, None, :] - p[..., None] * rays[None], q[..., None])  # (C, R, 3)
-
-        def px_per_rad(cam, rot, trans, mask, e):
-            v_cam = rays @ rot  # R^T r for every ray
-            e_cam = e @ rot
-            _, tangent = jax.jvp(lambda x: cam_lib.project(cam, x)[0], (v_cam,), (e_cam,))
-            return _safe_norm(tangent)
-
-        scale = map_cameras(px_per_rad, rig, move)  # (C, R)
+        move = par.motion_directions(a, p, q, rays)  # (C, R, 3)
+        scale = map_cameras(lambda cam, rot, trans, mask, e: par.pixels_per_radian(
+            cam, rot, rays, e), rig, move)  # (C, R)
         scale = jnp.where(keep, scale, 0.0)
     return RigTerms(along=p.reshape(-1), perp=q.reshape(-1), weight=weight.reshape(-1),
                     scale=scale.reshape(-1))
@@ -218,8 +207,11 @@ def rig_terms(rig: Rig, d_min, d_max, pano: Panorama = DEFAULT_PANO, measure: st
 
 def parallax_angles(terms: RigTerms, inv_d: Array) -> Array:
     """Per-term parallax angle (radians) at inverse distances ``inv_d`` (...,) -> (..., K)."""
-    u = inv_d[..., None]
-    return jnp.arctan2(terms.perp * u, 1.0 + terms.along * u)
+    return par.parallax_angle(terms.along, terms.perp, jnp.asarray(inv_d)[..., None])
+
+
+def _normalised_weights(terms: RigTerms) -> Array:
+    return terms.weight * terms.scale / safe_denominator(terms.coverage)
 
 
 def cumulative_displacement(terms: RigTerms, inv_d: Array) -> Array:
@@ -227,16 +219,14 @@ def cumulative_displacement(terms: RigTerms, inv_d: Array) -> Array:
 
     Increasing in ``inv_d``; ``Phi(d_i) - Phi(d_{i+1})`` is the mean displacement of a step.
     """
-    w = terms.weight * terms.scale / jnp.maximum(terms.coverage, _TINY)
-    return parallax_angles(terms, inv_d) @ w
+    return parallax_angles(terms, inv_d) @ _normalised_weights(terms)
 
 
 def cumulative_displacement_slope(terms: RigTerms, inv_d: Array) -> Array:
     """``dPhi/du`` at inverse distances ``inv_d`` (...,) -> (...,)."""
-    u = inv_d[..., None]
-    w = terms.weight * terms.scale / jnp.maximum(terms.coverage, _TINY)
+    u = jnp.asarray(inv_d)[..., None]
     den = (1.0 + terms.along * u) ** 2 + (terms.perp * u) ** 2
-    return (terms.perp / jnp.maximum(den, _TINY)) @ w
+    return safe_div(terms.perp, den) @ _normalised_weights(terms)
 
 
 def _hermite_solve(un, fn, dn, y):
@@ -248,7 +238,7 @@ def _hermite_solve(un, fn, dn, y):
     j = jnp.clip(jnp.sum(fn[None, :] <= y[:, None], axis=-1) - 1, 0, m - 2)
     u0, u1, f0, f1, d0, d1 = un[j], un[j + 1], fn[j], fn[j + 1], dn[j], dn[j + 1]
     h = u1 - u0
-    t = jnp.clip(_safe_div(y - f0, f1 - f0), 0.0, 1.0)
+    t = jnp.clip(safe_div(y - f0, f1 - f0), 0.0, 1.0)
 
     def newton(_, t):
         t2, t3 = t * t, t * t * t
@@ -256,7 +246,9 @@ def _hermite_solve(un, fn, dn, y):
                + (-2 * t3 + 3 * t2) * f1 + (t3 - t2) * h * d1)
         der = ((6 * t2 - 6 * t) * f0 + (3 * t2 - 4 * t + 1) * h * d0
                + (-6 * t2 + 6 * t) * f1 + (3 * t2 - 2 * t) * h * d1)
-        der = jnp.where(der > _TINY, der, f1 - f0 + _TINY)
+        # A non-increasing interpolant (a rounding artefact) falls back to the secant slope.
+        eps = guard_floor(der)
+        der = jnp.where(der > eps, der, f1 - f0 + eps)
         return jnp.clip(t - (val - y) / der, 0.0, 1.0)
 
     t = jax.lax.fori_loop(0, _HERMITE_ITERS, newton, t)
@@ -267,8 +259,8 @@ def solve_equal_steps(terms: RigTerms, n: int, d_min, d_max, num_nodes: int = _N
     """The n distances (ascending, metres) with equal steps of ``Phi``; pure and fixed-length.
 
     Differentiable by the implicit function theorem (see the module docstring). Returns NaN
-    everywhere when ``terms.coverage`` is 0 (inside a trace there is no other way to signal it;
-    the public :func:`rig_gi_candidates` raises before that can happen on concrete input).
+    everywhere when ``terms.coverage`` is 0 (the value cannot raise; the public
+    :func:`rig_gi_candidates` raises on concrete input), with finite gradients.
     """
     dt = terms.along.dtype
     d_min = jnp.asarray(d_min, dt)
@@ -285,8 +277,8 @@ def solve_equal_steps(terms: RigTerms, n: int, d_min, d_max, num_nodes: int = _N
     fixed_lo, fixed_hi = jax.lax.stop_gradient(u_lo), jax.lax.stop_gradient(u_hi)
     y_fixed = targets(fixed)
     # Nodes evenly spaced in atan(b0 u): nearly uniform steps of Phi for a single baseline b0.
-    b0 = jnp.maximum(jnp.sum(fixed.weight * fixed.perp) / jnp.maximum(fixed.coverage, _TINY),
-                     1e-6)
+    b0 = jnp.maximum(jnp.sum(fixed.weight * fixed.perp) / safe_denominator(fixed.coverage),
+                     _MIN_OFFSET)
     th = jnp.linspace(jnp.arctan(b0 * fixed_lo), jnp.arctan(b0 * fixed_hi), num_nodes)
     un = (jnp.tan(th) / b0).at[0].set(fixed_lo).at[-1].set(fixed_hi)
     fn = cumulative_displacement(fixed, un)
@@ -295,7 +287,7 @@ def solve_equal_steps(terms: RigTerms, n: int, d_min, d_max, num_nodes: int = _N
 
     def newton_step(tm, y, u):
         slope = jax.lax.stop_gradient(cumulative_displacement_slope(fixed, u))
-        slope = jnp.where(slope > _TINY, slope, 1.0)
+        slope = jnp.where(slope > guard_floor(slope), slope, 1.0)
         return u - (cumulative_displacement(tm, u) - y) / slope
 
     u = jnp.clip(newton_step(fixed, y_fixed, u), lo, hi)
@@ -307,17 +299,25 @@ def solve_equal_steps(terms: RigTerms, n: int, d_min, d_max, num_nodes: int = _N
 
 @functools.partial(jax.jit, static_argnames=("n", "pano", "measure", "samples"))
 def _rig_gi_jit(rig, d_min, d_max, rays, *, n, pano, measure, samples):
+    # One compiled program per (n, pano, measure, samples) for eager callers.
     terms = rig_terms(rig, d_min, d_max, pano, measure, samples, rays)
     return solve_equal_steps(terms, n, d_min, d_max), terms.coverage
 
 
-def _no_coverage_error(rig: Rig, d_min, d_max) -> ValueError:
-    return ValueError(
-        f"rig: no panorama ray between d_min={float(d_min)} m and d_max={float(d_max)} m is seen "
-        f"by two cameras with parallax (cameras {list(rig.names)} at "
-        f"{np.round(np.asarray(rig.translations), 4).tolist()}, reference "
-        f"{np.round(np.asarray(rig.reference), 4).tolist()}); GI candidates need overlapping "
-        "views from distinct camera centres")
+def require_coverage(coverage, rig: Rig, d_min, d_max) -> None:
+    """ValueError when ``coverage`` (:attr:`RigTerms.coverage`) is 0 and every input is concrete;
+    a checkify debug check under a trace (where the candidates come back as NaN instead)."""
+    if is_concrete(coverage, rig, d_min, d_max):
+        where = (f" (cameras {list(rig.names)} at "
+                 f"{np.round(np.asarray(rig.translations), 4).tolist()}, reference "
+                 f"{np.round(np.asarray(rig.reference), 4).tolist()})")
+        range_ = f"between d_min={float(d_min)} m and d_max={float(d_max)} m "
+    else:
+        where = f" (cameras {list(rig.names)})"
+        range_ = ""
+    require(coverage > 0.0, "rig: no panorama ray " + range_ + "is seen by two cameras with "
+            "parallax" + where + "; GI candidates need overlapping views from distinct camera "
+            "centres", inputs=(rig, d_min, d_max))
 
 
 def rig_gi_candidates(rig: Rig, n: int, d_min=0.5, d_max=100.0, *, pano: Panorama = DEFAULT_PANO,
@@ -326,66 +326,98 @@ def rig_gi_candidates(rig: Rig, n: int, d_min=0.5, d_max=100.0, *, pano: Panoram
 
     Args:
       rig: the rig (camera models, poses, reference point, masks).
-      n: number of candidates (>= 2).
+      n: number of candidates (>= 2); static.
       d_min, d_max: the range in metres, 0 < d_min < d_max; the ends of the list.
-      pano: panorama rays the displacement is averaged over (hemisphere grid).
+      pano: panorama rays the displacement is averaged over (hemisphere grid); static.
       measure: 'pixels' (angle times the projection's pixels per radian) or 'angle' (radians).
-      samples: distances at which visibility is tested.
+      samples: distances at which visibility is tested; static.
       rays: optional (R, 3) rig-frame directions replacing the panorama grid (equal weights).
 
-    Raises ValueError for bad arguments and for a rig where no ray is seen by two cameras with
-    parallax. Jit-able and differentiable (see the module docstring); under a trace the rig
-    check cannot raise and such a rig gives NaN.
+    Traceable (jit, vmap, grad over the rig's poses and intrinsics, d_min, d_max; see the module
+    docstring for the derivative). On concrete input, bad arguments and a rig where no ray is
+    seen by two cameras with parallax raise ValueError; under a trace such a rig gives NaN and
+    the value checks are checkify debug checks (``checkify.checkify`` turns them into errors).
     """
     n = check_count(n)
     check_range(d_min, d_max)
     _check_options(pano, measure, samples)
     _check_rays(rays)
-    d, coverage = _rig_gi_jit(as_float_rig(rig), d_min, d_max, rays, n=n, pano=pano,
-                              measure=measure, samples=samples)
-    if is_concrete(coverage) and not float(coverage) > 0.0:
-        raise _no_coverage_error(rig, d_min, d_max)
+    rig = as_float_rig(rig)
+    d, coverage = _rig_gi_jit(rig, d_min, d_max, rays, n=n, pano=pano, measure=measure,
+                              samples=samples)
+    require_coverage(coverage, rig, d_min, d_max)
     return d
 
 
-def fit_closed_form_baseline(candidates, d_min=None, d_max=None) -> float:
+# Grid on log b of the closed-form fit, and golden-section steps refining its best cell (each
+# shrinks the bracket by 0.618: 60 take a 0.12-wide cell below 1e-13 in log b).
+_FIT_GRID = 241
+_FIT_GOLDEN_STEPS = 60
+
+
+def _closed_form_misfit(log_b, log_c, lo, hi):
+    """``sum_i (log d_i(b) - log c_i)^2`` of the closed-form list for baseline ``exp(log_b)``."""
+    b = jnp.exp(log_b)
+    frac = jnp.linspace(0.0, 1.0, log_c.shape[0], dtype=log_c.dtype)
+    th = jnp.arctan(b / lo) + frac * (jnp.arctan(b / hi) - jnp.arctan(b / lo))
+    return jnp.sum((log_b - jnp.log(jnp.tan(th)) - log_c) ** 2)
+
+
+def fit_closed_form_baseline(candidates, d_min=None, d_max=None) -> Array:
     """The baseline b (m) whose closed-form GI list best matches ``candidates`` in log distance.
 
-    Minimises ``sum_i (log d_i(b) - log c_i)^2`` over b in ``[1e-3 d_min, 10 d_max]`` (a grid on
-    log b, then a bounded scalar search; concrete values, not traced). As ``b -> 0`` the closed
-    form tends to the EV list; a list at least as linear in inverse distance as EV fits best at
-    the lower end of the range and gets 0.0 ("EV-like").
+    Minimises ``sum_i (log d_i(b) - log c_i)^2`` over b in ``[1e-3 d_min, 10 d_max]``: a grid on
+    log b (the misfit need not be unimodal over six decades), then golden-section steps in the
+    best grid cell, then one Newton step on the misfit's derivative written so that its
+    gradient is the implicit derivative ``db/dc`` (as in :func:`solve_equal_steps`). As
+    ``b -> 0`` the closed form tends to the EV list; a list at least as linear in inverse
+    distance as EV fits best at the lower end of the range and gets 0.0 ("EV-like", zero
+    gradient). ``d_min``, ``d_max`` default to the list's ends. A list with a NaN (a rig
+    without coverage, under a trace) gives NaN.
+
+    Traceable (jit, vmap, grad in the candidates and the range); the list is checked eagerly
+    when concrete, by a checkify debug check when traced.
     """
-    from scipy.optimize import minimize_scalar
-
-    c = np.asarray(candidates, np.float64)
-    if c.ndim != 1 or c.size < 2 or not np.all(np.isfinite(c)) or np.any(np.diff(c) <= 0):
-        raise ValueError(f"candidates must be a finite ascending 1-D list of >= 2 distances; "
-                         f"found shape {c.shape}")
-    lo = c[0] if d_min is None else float(d_min)
-    hi = c[-1] if d_max is None else float(d_max)
-    theta_frac = np.linspace(0.0, 1.0, c.size)
-
-    def loss(log_b):
-        b = math.exp(log_b)
-        th = math.atan(b / lo) + theta_frac * (math.atan(b / hi) - math.atan(b / lo))
-        return float(np.sum((np.log(b / np.tan(th)) - np.log(c)) ** 2))
-
-    # Coarse grid first (the loss need not be unimodal over six decades), then a bounded refine.
-    grid = np.linspace(math.log(1e-3 * lo), math.log(10.0 * hi), 241)
-    k = int(np.argmin([loss(g) for g in grid]))
-    if k == 0:
-        # The b -> 0 limit of the closed form is the EV list; this list is at least that linear.
-        return 0.0
-    lo_g, hi_g = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
-    res = minimize_scalar(loss, bounds=(lo_g, hi_g), method="bounded", options={"xatol": 1e-10})
-    return float(math.exp(res.x))
+    guard_candidates(candidates)
+    c = jnp.asarray(candidates, _float_dtype())
+    lo = c[0] if d_min is None else d_min
+    hi = c[-1] if d_max is None else d_max
+    return _fit_closed_form(c, jnp.asarray(lo, c.dtype), jnp.asarray(hi, c.dtype))
 
 
-def effective_baseline(rig: Rig, n: int = 16, d_min=0.5, d_max=100.0, **opts) -> float:
+@jax.jit
+def _fit_closed_form(c, lo, hi):
+    log_c = jnp.log(c)
+    misfit = lambda lb: _closed_form_misfit(lb, log_c, lo, hi)  # noqa: E731
+    fixed = jax.lax.stop_gradient((log_c, lo, hi))
+    misfit_fixed = lambda lb: _closed_form_misfit(lb, *fixed)  # noqa: E731
+
+    grid = jnp.linspace(jnp.log(1e-3 * fixed[1]), jnp.log(10.0 * fixed[2]), _FIT_GRID)
+    k = jnp.argmin(jax.vmap(misfit_fixed)(grid))
+    golden = (math.sqrt(5.0) - 1.0) / 2.0
+
+    def shrink(_, ab):
+        a, b = ab
+        x1, x2 = b - golden * (b - a), a + golden * (b - a)
+        left = misfit_fixed(x1) < misfit_fixed(x2)
+        return jnp.where(left, a, x1), jnp.where(left, x2, b)
+
+    a, b = jax.lax.fori_loop(0, _FIT_GOLDEN_STEPS, shrink,
+                             (grid[jnp.maximum(k - 1, 0)], grid[jnp.minimum(k + 1, _FIT_GRID - 1)]))
+    best = jax.lax.stop_gradient(0.5 * (a + b))
+    curvature = jax.grad(jax.grad(misfit_fixed))(best)
+    curvature = jnp.where(curvature > guard_floor(curvature), curvature, 1.0)
+    log_b = best - jax.grad(misfit)(best) / curvature  # value: best; gradient: implicit
+    b = jnp.where(k == 0, 0.0, jnp.exp(log_b))
+    # A NaN list (a rig without coverage under a trace) has no fit.
+    return jnp.where(jnp.all(jnp.isfinite(c)), b, jnp.nan)
+
+
+def effective_baseline(rig: Rig, n: int = 16, d_min=0.5, d_max=100.0, **opts) -> Array:
     """The baseline (m) whose closed-form GI list best matches the rig-aware list of n entries.
 
-    0.0 means the rig-aware list is EV-like (see :func:`fit_closed_form_baseline`).
+    0.0 means the rig-aware list is EV-like (see :func:`fit_closed_form_baseline`). Traceable
+    like :func:`rig_gi_candidates`; ``opts`` go to it.
     """
     d = rig_gi_candidates(rig, n, d_min, d_max, **opts)
     return fit_closed_form_baseline(d, d_min, d_max)

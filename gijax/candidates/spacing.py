@@ -22,13 +22,18 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from gijax.candidates.closed_form import gi_candidates
-from gijax.candidates.validation import is_concrete
+from gijax.candidates.validation import require
+from gijax.numerics import sqrt_or_zero
 
 
 def camera_spacing(translations):
     """Mean nearest-neighbour distance (m) between camera centres; ``translations`` (N, 3), N >= 2.
 
     Accepts a :class:`gijax.geometry.rig.Rig` too (its camera-to-rig translations).
+    Traceable. A camera that shares its centre with another has nearest distance 0 and a zero
+    gradient there (the distance is not differentiable at 0). When every camera shares its
+    centre the spacing is 0: a ValueError on concrete input, a checkify debug check under a
+    trace (where the closed form then gives NaN).
     """
     t = getattr(translations, "translations", translations)
     t = jnp.asarray(t)
@@ -38,14 +43,14 @@ def camera_spacing(translations):
         raise ValueError(f"a camera spacing needs at least 2 cameras; found {t.shape[0]}")
     diff = t[:, None, :] - t[None, :, :]
     d2 = jnp.sum(diff * diff, axis=-1)
-    # The self-distance (0) must not be the nearest neighbour; masking before the sqrt keeps the
-    # gradient finite (sqrt'(0) is infinite).
+    # The self-distance (0) must not be the nearest neighbour.
     d2 = jnp.where(jnp.eye(t.shape[0], dtype=bool), jnp.inf, d2)
-    nearest = jnp.sqrt(jnp.min(d2, axis=1))
+    m2 = jnp.min(d2, axis=1)
+    # sqrt'(0) is infinite: coincident centres get distance 0 through a guarded sqrt.
+    nearest = sqrt_or_zero(m2)
     spacing = jnp.mean(nearest)
-    if is_concrete(spacing) and not float(spacing) > 0.0:
-        raise ValueError(f"cameras must not share a centre: nearest-neighbour distances "
-                         f"{[float(x) for x in nearest]} m")
+    require(spacing > 0.0, "cameras must not share a centre: nearest-neighbour distances "
+            "{nearest} m", inputs=t, nearest=nearest)
     return spacing
 
 

@@ -13,25 +13,17 @@ import functools
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-from gijax.candidates.closed_form import closed_form_steps
-from gijax.candidates.rig_aware import (DEFAULT_PANO, _check_options, _check_rays,
-                                        _no_coverage_error, as_float_rig, parallax_angles,
-                                        rig_terms)
-from gijax.candidates.validation import is_concrete
+from gijax.candidates.rig_aware import (DEFAULT_PANO, _check_options, _check_rays, as_float_rig,
+                                        parallax_angles, require_coverage, rig_terms)
+from gijax.candidates.validation import guard_candidates
+from gijax.numerics import safe_denominator, safe_div, sqrt_or_zero
 
 
-def _check_candidates(candidates) -> None:
-    if not is_concrete(candidates):
-        return
-    c = np.asarray(candidates, np.float64)
-    if c.ndim != 1 or c.size < 2:
-        raise ValueError(f"candidates must be a 1-D list of >= 2 distances; found shape {c.shape}")
-    if not np.all(np.isfinite(c)) or c[0] <= 0.0:
-        raise ValueError(f"candidates must be finite distances > 0 m; found {c.tolist()}")
-    if np.any(np.diff(c) <= 0.0):
-        raise ValueError(f"candidates must be strictly ascending; found {c.tolist()}")
+def _std(x, axis=None):
+    # jnp.std has a NaN gradient where every value is equal (sqrt'(0)): a list's zero steps on a
+    # rig without coverage, or the steps of a camera without parallax.
+    return sqrt_or_zero(jnp.var(x, axis=axis))
 
 
 def summarize_steps(steps) -> dict:
@@ -41,17 +33,9 @@ def summarize_steps(steps) -> dict:
     return {
         "steps": steps,
         "mean": mean,
-        "min_max_ratio": jnp.min(steps) / jnp.max(steps),
-        "cv": jnp.std(steps) / mean,
+        "min_max_ratio": safe_div(jnp.min(steps), jnp.max(steps)),
+        "cv": safe_div(_std(steps), mean),
     }
-
-
-def closed_form_uniformity(candidates, baseline) -> dict:
-    """Statistics of the parallax-angle steps (radians) for one perpendicular baseline (metres)."""
-    _check_candidates(candidates)
-    out = summarize_steps(closed_form_steps(jnp.asarray(candidates), baseline))
-    out["unit"] = "rad"
-    return out
 
 
 def step_uniformity(rig, candidates, *, pano=DEFAULT_PANO, measure: str = "pixels",
@@ -59,39 +43,41 @@ def step_uniformity(rig, candidates, *, pano=DEFAULT_PANO, measure: str = "pixel
     """Per-step displacement statistics of ``candidates`` (n,) metres ascending on ``rig``.
 
     Returns a dict of arrays: ``steps`` (n-1,) mean displacement of each step over ray/camera
-    pairs (pixels for ``measure='pixels'``, radians for 'angle'), ``mean``, ``min_max_ratio``,
-    ``cv`` (std / mean of the steps), ``ray_cv`` (the coefficient of variation of the steps of
-    each ray/camera pair, averaged with the pairs' weights: how uniform the list is for an
-    individual ray rather than on average), ``pair_steps`` (K, n-1) the steps of every
-    ray/camera pair (K = cameras x rays, camera-major), ``pair_weight`` (K,) their normalised
-    weights (0 for pairs that do not count), ``pair_scale`` (K,) pixels per radian, and
-    ``unit``. Visibility is evaluated over the list's own range ``[candidates[0],
-    candidates[-1]]``. ``pano``, ``measure``, ``samples`` and ``rays`` as in
-    :func:`gijax.candidates.rig_aware.rig_gi_candidates`.
+    pairs (pixels for ``measure='pixels'``, radians for 'angle'; the unit's name is
+    ``MEASURE_UNITS[measure]``), ``mean``, ``min_max_ratio``, ``cv`` (std / mean of the steps),
+    ``ray_cv`` (the coefficient of variation of the steps of each ray/camera pair, averaged with
+    the pairs' weights: how uniform the list is for an individual ray rather than on average),
+    ``pair_steps`` (K, n-1) the steps of every ray/camera pair (K = cameras x rays,
+    camera-major), ``pair_weight`` (K,) their normalised weights (0 for pairs that do not
+    count) and ``pair_scale`` (K,) pixels per radian. Visibility is evaluated over the list's
+    own range ``[candidates[0], candidates[-1]]``. ``pano``, ``measure``, ``samples`` and
+    ``rays`` as in :func:`gijax.candidates.rig_aware.rig_gi_candidates`.
+
+    Traceable (jit, vmap, grad in the rig and the candidates). On concrete input a bad list or
+    a rig without coverage raises ValueError; under a trace those are checkify debug checks and
+    a rig without coverage gives zero steps and ratios.
     """
-    _check_candidates(candidates)
+    guard_candidates(candidates)
     _check_options(pano, measure, samples)
     _check_rays(rays)
     rig = as_float_rig(rig)
     d = jnp.asarray(candidates, rig.translations.dtype)
     out, coverage = _uniformity_jit(rig, d, rays, pano=pano, measure=measure, samples=samples)
-    if is_concrete(coverage) and not float(coverage) > 0.0:
-        raise _no_coverage_error(rig, d[0], d[-1])
-    out["unit"] = "px" if measure == "pixels" else "rad"
+    require_coverage(coverage, rig, d[0], d[-1])
     return out
 
 
 @functools.partial(jax.jit, static_argnames=("pano", "measure", "samples"))
 def _uniformity_jit(rig, d, rays, *, pano, measure, samples):
+    # One compiled program per (pano, measure, samples) for eager callers.
     terms = rig_terms(rig, d[0], d[-1], pano, measure, samples, rays)
     coverage = terms.coverage
     ang = parallax_angles(terms, 1.0 / d)  # (n, K)
     per_pair = (ang[:-1] - ang[1:]).T * terms.scale[:, None]  # (K, n-1)
-    w = terms.weight / jnp.where(coverage > 0.0, coverage, 1.0)
+    w = terms.weight / safe_denominator(coverage)
     out = summarize_steps(w @ per_pair)
     pair_mean = jnp.mean(per_pair, axis=1)
-    safe = jnp.where(pair_mean > 0.0, pair_mean, 1.0)
-    pair_cv = jnp.where(pair_mean > 0.0, jnp.std(per_pair, axis=1) / safe, 0.0)
+    pair_cv = jnp.where(pair_mean > 0.0, safe_div(_std(per_pair, axis=1), pair_mean), 0.0)
     out["ray_cv"] = w @ pair_cv
     out["pair_steps"] = per_pair
     out["pair_weight"] = w

@@ -62,7 +62,8 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    from gijax.candidates import candidates_for, effective_baseline, step_uniformity
+    from gijax.candidates import (MEASURE_UNITS, candidates_for, effective_baseline,
+                                  step_uniformity)
     from gijax.candidates.validation import check_count, check_range
 
     check_count(args.num)
@@ -86,13 +87,13 @@ def _run(args) -> int:
         "d_max": args.d_max,
         "candidates": c.tolist(),
         "inverse_candidates": (1.0 / c).tolist(),
-        "unit": uni["unit"],
+        "unit": MEASURE_UNITS[args.measure],
         "steps": np.asarray(uni["steps"], np.float64).tolist(),
         "mean_step": float(uni["mean"]),
         "min_max_ratio": float(uni["min_max_ratio"]),
         "cv": float(uni["cv"]),
         "ray_cv": float(uni["ray_cv"]),
-        "effective_baseline": b_eff,
+        "effective_baseline": float(b_eff),
     }
     if args.kind == "gi-closed":
         result["baseline"] = 0.3095015413531889 if args.baseline is None else args.baseline

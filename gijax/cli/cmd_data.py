@@ -31,38 +31,9 @@ def register(subparsers) -> None:
     c.set_defaults(func=run)
 
 
-def check_with_progress(path, what: str = "dataset", progress: bool = True):
-    """:func:`gijax.data.check.check_dataset` with a progress bar (on stderr)."""
-    from tqdm import tqdm
-
-    from gijax.data.check import check_dataset
-
-    bar = tqdm(desc=f"check {what}", unit="sample", disable=not progress, leave=False)
-
-    def update(done: int, total: int) -> None:
-        bar.total = total
-        bar.update(done - bar.n)
-
-    try:
-        return check_dataset(path, update)
-    finally:
-        bar.close()
-
-
-def require_clean(path, what: str, allow_partial: bool, progress: bool = True) -> None:
-    """Check a dataset a command is about to use; one-line ValueError on the first problem."""
-    result = check_with_progress(path, what, progress)
-    if result.problems:
-        more = (f" (and {len(result.problems) - 1} more)" if len(result.problems) > 1 else "")
-        raise ValueError(f"{what} data {path}: {result.problems[0]}{more}; 'gijax data check "
-                         f"{path}' lists every problem, --no-data-check skips this check")
-    if not result.complete and not allow_partial:
-        raise ValueError(f"{what} data {path} is incomplete: {result.samples} of the "
-                         f"{result.requested} samples its manifest requests; finish it by "
-                         f"re-running the command that made it, or pass --allow-partial")
-
-
 def run(args) -> int:
+    from gijax.data.check import check_with_progress
+
     result = check_with_progress(args.dir, progress=not args.no_progress)
     for line in result.problems[:MAX_LISTED]:
         print(f"  problem: {line}")

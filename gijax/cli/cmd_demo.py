@@ -6,12 +6,14 @@ from __future__ import annotations
 def _run(args) -> int:
     from gijax.demo import run_demo
 
-    run_demo(args.out, seed=args.seed, model_dir=args.model, baseline=args.baseline,
+    run_demo(args.out, seed=args.seed, model=args.model, baseline=args.baseline,
              progress=not args.quiet)
     return 0
 
 
 def register(sub) -> None:
+    from gijax.demo import DEFAULT_MODEL
+
     p = sub.add_parser(
         "demo",
         help="render fresh scenes, run the bundled model and the classical baseline, compare",
@@ -27,8 +29,10 @@ def register(sub) -> None:
     p.add_argument("--out", default="gijax-demo", help="output folder (default: gijax-demo)")
     p.add_argument("--seed", type=int, default=None,
                    help="scene seed (default: a fresh random scene each run; the seed is printed)")
-    p.add_argument("--model", default=None,
-                   help="a training run folder to use instead of the bundled G16VV-cpu model")
+    p.add_argument("--ckpt", "--model", dest="model", default=DEFAULT_MODEL,
+                   metavar="PATH|NAME",
+                   help=f"the model: a training run folder, an inference bundle or the name of "
+                        f"a bundled model (see 'gijax models'; default {DEFAULT_MODEL})")
     p.add_argument("--baseline", default="RS-E32",
                    help="classical baseline configuration: RS-E16, RS-G16, RS-E32, RS-G32, RS-E32-AD")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -1,9 +1,9 @@
-"""``gijax eval``: the paper's table columns (MAE, RMSE, SSIM, time, memory) for a trained run."""
+"""``gijax eval``: the paper's table columns (MAE, RMSE, SSIM, coverage, time, memory) for a
+trained run or the classical baseline."""
 
 from __future__ import annotations
 
 import argparse
-import resource
 import sys
 import time
 from pathlib import Path
@@ -25,6 +25,9 @@ METRIC_DEFINITIONS = {
 
 
 def register(subparsers) -> None:
+    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
+    from gijax.cli.options import CKPT_HELP
+
     p = subparsers.add_parser(
         "eval", help="evaluate a trained run (or the RTSS baseline) on a dataset folder",
         description=(
@@ -39,26 +42,33 @@ def register(subparsers) -> None:
             "data range 1 and zero padding. --rig evaluates on another rig than the dataset's "
             "(the paper's layout-change experiment) and --candidates picks the list: the "
             "training list, the paper's list recomputed for the evaluation rig ('spacing'), "
-            "gijax's rig-aware GI ('rig'), EV, or a file."),
+            "gijax's rig-aware GI ('rig'), EV, or a file. --method rtss evaluates the classical "
+            "baseline instead: it needs no --ckpt (and refuses one, which it would not use); "
+            "its default candidates are the --rtss-preset's own list (RS-E32: 32 even in "
+            "inverse distance, 0.5-100 m), printed at run time, and its panorama is the "
+            "dataset's. Pixels a method leaves without an estimate are lost coverage: left "
+            "out of MAE, RMSE and the bad rates, reported as 'cov' (the share of scored "
+            "pixels with an estimate) and seen by SSIM at the far end of the candidate "
+            "range; no metric is NaN because of them."),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--ckpt", required=True, help="run folder written by 'gijax train', or an inference bundle")
+    p.add_argument("--ckpt", default=None, metavar="PATH|NAME",
+                   help=CKPT_HELP + " (needed for --method net; refused with --method rtss)")
     p.add_argument("--data", required=True,
                    help="dataset folder, gijax's layout or the release's (partition 'validate'; "
                         "DIR@KEY reads partition KEY)")
     p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
-    p.add_argument("--candidates", default="train",
-                   help="'train' (training list); 'spacing' (the paper's list for a new rig, "
-                        "Table II: closed-form GI with the rig's camera spacing as the "
-                        "baseline); 'rig' (gijax's extension: rig-aware GI, equal mean pixel "
-                        "steps over the panorama's rays and cameras; on the training rig it is "
-                        "close to EV, not to the released G16); 'ev'; or a JSON / text file of "
-                        "distances in metres")
+    p.add_argument("--candidates", default=None, metavar=METAVAR,
+                   help=CANDIDATES_HELP + " Default: 'train' for --method net, the preset's own "
+                        "list for --method rtss.")
     p.add_argument("--which", default="best", choices=["best", "latest"],
                    help="checkpoint to load: best validated or newest periodic (an unreadable "
                         "one is skipped with a warning; the run folder is only read)")
     p.add_argument("--method", default="net", choices=METHODS,
-                   help="'net' (the trained network) or 'rtss' (the classical baseline with the "
-                        "same candidates)")
+                   help="'net' (the trained network of --ckpt) or 'rtss' (the classical "
+                        "baseline, no model)")
+    p.add_argument("--rtss-preset", default="RS-E32", metavar="NAME",
+                   help="RTSS configuration for --method rtss (RS-E16, RS-G16, RS-E32, RS-G32, "
+                        "RS-E32-AD)")
     p.add_argument("--batch", type=int, default=1, help="samples per forward pass")
     p.add_argument("--limit", type=int, default=0, help="evaluate at most this many samples")
     p.add_argument("--metrics", default="paper", choices=("paper", "gijax"),
@@ -70,38 +80,6 @@ def register(subparsers) -> None:
     p.add_argument("--allow-partial", action="store_true",
                    help="evaluate on a dataset holding fewer samples than its manifest requests")
     p.set_defaults(func=run)
-
-
-def choose_candidates(spec: str, train_candidates, model_config, rig) -> np.ndarray:
-    """The evaluation candidate list (metres) for ``--candidates``."""
-    from gijax.candidates import RECOMPUTED, recomputed_candidates
-
-    n = model_config.num_candidates
-    if spec == "train":
-        cand = np.asarray(train_candidates, np.float64)
-    elif spec in RECOMPUTED:
-        cand = np.asarray(recomputed_candidates(spec, n, rig, model_config.d_min,
-                                                model_config.d_max), np.float64)
-    else:
-        from gijax.cli.cmd_train import read_candidate_file
-
-        cand = np.asarray(read_candidate_file(spec), np.float64)
-    if cand.shape != (n,):
-        raise ValueError(f"the network uses {n} candidates; --candidates {spec} gives {cand.size}")
-    if cand[0] <= 0 or np.any(np.diff(cand) <= 0):
-        raise ValueError(f"candidates must be positive, strictly ascending metres; found {cand}")
-    return cand
-
-
-def peak_memory_mb() -> dict:
-    """Peak host RSS and, where the backend reports it, peak device memory (MB)."""
-    import jax
-
-    out = {"host_peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
-    stats = jax.local_devices()[0].memory_stats() or {}
-    if "peak_bytes_in_use" in stats:
-        out["device_peak_mb"] = stats["peak_bytes_in_use"] / 2 ** 20
-    return out
 
 
 def _net_predictor(model, rig, candidates):
@@ -126,8 +104,8 @@ def _net_predictor(model, rig, candidates):
     return predict
 
 
-def _rtss_predictor(rig, candidates, pano):
-    """RTSS on the raw fisheye images of each sample (the baseline engineer's rtss_predict)."""
+def _rtss_predictor(rig, candidates, pano, config):
+    """RTSS on the raw fisheye images of each sample: (inverse distance, estimated) per batch."""
     import jax.numpy as jnp
 
     from gijax.baseline.rtss import rtss_predict
@@ -135,26 +113,60 @@ def _rtss_predictor(rig, candidates, pano):
     cand = jnp.asarray(candidates, jnp.float32)
 
     def predict(_batch, reader, indices):
-        outs = []
+        invs, valids = [], []
         for i in indices:
             s = reader[int(i)]
             images = np.asarray(s["images"], np.float32) / 255.0
-            outs.append(rtss_predict(rig, images, np.asarray(s["masks"], np.float32), cand,
-                                     pano)["inv_distance"])
-        return jnp.stack(outs)
+            out = rtss_predict(rig, images, np.asarray(s["masks"], np.float32), cand, pano,
+                               config)
+            invs.append(out["inv_distance"])
+            valids.append(out["valid"])
+        return jnp.stack(invs), jnp.stack(valids)
 
     return predict
+
+
+def _label_batches(reader, batch: int):
+    """The dataset's labels in order, in batches (the baseline reads the raw images itself)."""
+    from gijax.data.loader import label_valid
+
+    for start in range(0, len(reader), batch):
+        indices = np.arange(start, min(start + batch, len(reader)))
+        dist = np.stack([np.asarray(reader[int(i)]["pano_distance"], np.float32)
+                         for i in indices])
+        yield {"index": indices, "distance": dist, "valid": label_valid(dist)}
+
+
+def _rtss_setup(args, rig, reader):
+    """The rig at the dataset's image size, the RTSS configuration, its candidates with their
+    description, and the output panorama (the dataset's label panorama)."""
+    from gijax.baseline.rtss import choose_candidates, get_rtss_preset
+    from gijax.geometry.panorama import Panorama
+    from gijax.predict import fit_images
+
+    if args.ckpt:
+        raise ValueError("--method rtss evaluates the classical baseline, which uses no model; "
+                         "drop --ckpt (or use --method net)")
+    config = get_rtss_preset(args.rtss_preset)
+    first = reader[0]
+    # The size policy of 'gijax predict': the baseline works at the images' own size.
+    rig = fit_images(rig, first["images"], None, None,
+                     log=lambda line: print(line, file=sys.stderr))[0]
+    config = config.replace(match_size=min(config.match_size, rig.cameras[0].width))
+    cand, how = choose_candidates(args.candidates, rig, config)
+    pano = Panorama.hemisphere(*np.shape(first["pano_distance"]))
+    return rig, config, cand, how, pano
 
 
 def run(args) -> int:
     import jax
     import jax.numpy as jnp
 
-    from gijax.geometry.panorama import Panorama
     from gijax.train.metrics import batch_sums, summarize
     from gijax.train.sources import open_dataset, validation_batches
-    from gijax.train.bundle import is_bundle, load_bundle
-    from gijax.train.trainer import load_for_inference
+    from gijax.bench.memory import device_peak_mib, host_peak_rss_mib
+    from gijax.candidates.spec import resolve_candidates
+    from gijax.store import load_model
 
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1; found {args.batch}")
@@ -162,10 +174,11 @@ def run(args) -> int:
         from gijax.io.paths import check_output_file
 
         check_output_file(args.json, "--json")
-    if is_bundle(args.ckpt):
-        model, mc, train_cand = load_bundle(args.ckpt)
-    else:
-        model, mc, train_cand = load_for_inference(args.ckpt, args.which)
+    if args.method == "net" and not args.ckpt:
+        raise ValueError("--method net needs --ckpt (a run folder, bundle or bundled model); "
+                         "--method rtss evaluates the classical baseline without one")
+    if args.method == "net":                 # a wrong model name is reported first
+        model, mc, train_cand = load_model(args.ckpt, args.which)
     reader = open_dataset(args.data, "evaluation", args.allow_partial)
     if args.rig:
         from gijax.io.rigfile import load_rig
@@ -173,44 +186,56 @@ def run(args) -> int:
         rig = load_rig(args.rig)
     else:
         rig = reader.rig
-    cand = choose_candidates(args.candidates, np.asarray(train_cand), mc, rig)
-    jcand = jnp.asarray(cand, jnp.float32)
-    pano = Panorama.hemisphere(*mc.output_hw)
     if args.method == "net":
+        cand, how = resolve_candidates(args.candidates or "train", rig, mc.num_candidates,
+                                       mc.d_min, mc.d_max, train=train_cand)
         predict = _net_predictor(model, rig, cand)
+        batches = validation_batches(reader, rig, args.batch, mc.surrogate_hw, 0)
+        name = mc.name
     else:
-        predict = _rtss_predictor(rig, cand, pano)
+        rig, config, cand, how, pano = _rtss_setup(args, rig, reader)
+        predict = _rtss_predictor(rig, cand, pano, config)
+        batches = _label_batches(reader, args.batch)
+        name = f"{config.name}/rtss"
+    print(f"candidates: {how}; {len(cand)} from {float(cand[0]):.3f} to {float(cand[-1]):.3f} m",
+          file=sys.stderr)
+    jcand = jnp.asarray(cand, jnp.float32)
     parts, times, seen = [], [], 0
-    for batch in validation_batches(reader, rig, args.batch, mc.surrogate_hw, 0):
+    for batch in batches:
         if args.limit and seen >= args.limit:
             break
         indices = batch["index"]
         if seen == 0:                       # compile outside the timing
             jax.block_until_ready(predict(batch, reader, indices))
         t0 = time.perf_counter()
-        inv = jax.block_until_ready(predict(batch, reader, indices))
+        out = jax.block_until_ready(predict(batch, reader, indices))
         times.append((time.perf_counter() - t0) / len(indices))
+        # The baseline marks the pixels it estimated; the network estimates every pixel.
+        inv, estimated = out if isinstance(out, tuple) else (out, None)
         sums = batch_sums(inv, jnp.asarray(batch["distance"]), jnp.asarray(batch["valid"]), jcand,
-                          metric_set=args.metrics)
+                          metric_set=args.metrics, pred_valid=estimated)
         parts.append(jax.tree.map(np.asarray, sums))
         seen += len(indices)
     if not parts:
         raise ValueError(f"evaluation data {args.data} yielded no samples")
     metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
                         args.metrics)
-    result = {"run": str(args.ckpt), "data": str(args.data), "method": args.method,
-              "preset": mc.name, "rig": args.rig or "dataset", "metric_set": args.metrics,
-              "metric_definitions": METRIC_DEFINITIONS[args.metrics],
-              "candidates_spec": args.candidates,
+    result = {"run": str(args.ckpt) if args.ckpt else None, "data": str(args.data),
+              "method": args.method, "preset": name, "rig": args.rig or "dataset",
+              "metric_set": args.metrics, "metric_definitions": METRIC_DEFINITIONS[args.metrics],
+              "candidates_spec": args.candidates or "default", "candidates_how": how,
               "candidates": [float(c) for c in cand], **metrics,
               "time_ms_per_sample": 1000.0 * float(np.mean(times)),
-              "device": str(jax.local_devices()[0]), **peak_memory_mb()}
+              "device": str(jax.local_devices()[0]), "host_peak_mb": host_peak_rss_mib()}
+    device_peak = device_peak_mib()
+    if device_peak is not None:
+        result["device_peak_mb"] = device_peak
     mem = result.get("device_peak_mb", result["host_peak_mb"])
-    print(f"{'model':<14}{'cand':>6}{'MAE':>9}{'RMSE':>9}{'SSIM':>8}{'>0.1':>8}{'>0.4':>8}"
-          f"{'ms':>9}{'MB':>9}")
-    print(f"{mc.name + ('/rtss' if args.method == 'rtss' else ''):<14}{args.candidates[:6]:>6}"
+    print(f"{'model':<16}{'cand':>6}{'MAE':>9}{'RMSE':>9}{'SSIM':>8}{'>0.1':>8}{'>0.4':>8}"
+          f"{'cov':>7}{'ms':>9}{'MB':>9}")
+    print(f"{name:<16}{(args.candidates or 'def')[:6]:>6}"
           f"{metrics['mae']:>9.4f}{metrics['rmse']:>9.4f}{metrics['ssim']:>8.4f}"
-          f"{metrics['bad_0.1']:>8.4f}{metrics['bad_0.4']:>8.4f}"
+          f"{metrics['bad_0.1']:>8.4f}{metrics['bad_0.4']:>8.4f}{metrics['coverage']:>7.3f}"
           f"{result['time_ms_per_sample']:>9.1f}{mem:>9.0f}")
     print(f"({metrics['samples']} samples; inverse distance in 1/m; {args.metrics} metrics: "
           f"{METRIC_DEFINITIONS[args.metrics]})", file=sys.stderr)

@@ -20,13 +20,16 @@ compared with JAX (inverse distance within 1e-4 1/m), and a TensorRT compatibili
 
 
 def register(subparsers) -> None:
+    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
+    from gijax.cli.options import CKPT_HELP
+
     p = subparsers.add_parser("export", help=HELP, description=DESCRIPTION,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--ckpt", metavar="RUN", help="training run folder (config.json + "
-                     "checkpoints)")
-    src.add_argument("--preset", metavar="NAME", help="model preset with random, UNTRAINED "
-                     "weights (for testing the deployment path only)")
+    src.add_argument("--ckpt", metavar="PATH|NAME", help=CKPT_HELP)
+    src.add_argument("--preset", metavar="NAME|FILE", help="model preset (or a JSON file of "
+                     "ModelConfig fields) with random, UNTRAINED weights (for testing the "
+                     "deployment path only)")
     p.add_argument("--rig", required=True, metavar="NAME|FILE",
                    help="built-in rig name or a rig / Kalibr / basalt calibration file")
     p.add_argument("--out", required=True, metavar="FILE", help="output .onnx file")
@@ -36,8 +39,8 @@ def register(subparsers) -> None:
     p.add_argument("--dynamic-batch", action="store_true", help="symbolic batch axis")
     p.add_argument("--rig-as-input", action="store_true",
                    help="intrinsics, poses, reference and candidates as graph inputs")
-    p.add_argument("--candidates", default="train", metavar="train|spacing|rig|ev|FILE",
-                   help="candidates baked in / used for validation (as in 'gijax predict')")
+    p.add_argument("--candidates", default="train", metavar=METAVAR,
+                   help="candidates baked in / used for validation: " + CANDIDATES_HELP)
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.add_argument("--no-validate", action="store_true",
                    help="skip the onnxruntime-vs-JAX comparison on a rendered sample")
@@ -47,25 +50,20 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from gijax.cli.cmd_predict import resolve_candidates
+    from gijax.candidates.spec import resolve_candidates
     from gijax.export.onnx_export import export_onnx, validate_export
     from gijax.export.trt_compat import check_model
     from gijax.io.rigfile import load_rig
 
     rig = load_rig(args.rig)
-    if args.ckpt:
-        from gijax.export.checkpoint import load_checkpoint
+    from gijax.store import model_or_untrained
 
-        model, config, train_cand = load_checkpoint(args.ckpt)
-        label = f"{config.name} from {args.ckpt}"
-    else:
-        from gijax.cli.cmd_predict import preset_config
-        from gijax.model import create_model
-
-        config = preset_config(args.preset)
-        model, train_cand = create_model(config, seed=args.seed), None
-        label = f"UNTRAINED {config.name} (random weights, seed {args.seed}) - for testing only"
-    candidates, how = resolve_candidates(args.candidates, config, rig, train_cand)
+    model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
+    if not args.ckpt:
+        label += " - for testing only"
+    candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
+                                         config.d_min, config.d_max, train=train_cand,
+                                         kind=config.candidates)
     print(f"exporting {label}; rig {args.rig}; candidates: {how} "
           f"{np.round(candidates, 3).tolist()} m")
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
+
+from gijax.cli.options import field_value
 
 HELP = "turn the authors' released checkpoint into a gijax bundle (--ckpt for predict/eval/export)"
 DESCRIPTION = """\
@@ -27,16 +28,6 @@ example:
 """
 
 
-def _override(text: str) -> tuple[str, object]:
-    if "=" not in text:
-        raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, found {text!r}")
-    key, value = text.split("=", 1)
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value
-
-
 def register(subparsers) -> None:
     p = subparsers.add_parser("import-weights", help=HELP, description=DESCRIPTION,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -44,7 +35,7 @@ def register(subparsers) -> None:
     p.add_argument("--preset", required=True, metavar="NAME",
                    help="gijax preset with the checkpoint's structure, e.g. G16V-released")
     p.add_argument("--out", required=True, metavar="DIR", help="bundle folder to write")
-    p.add_argument("--override", action="append", type=_override, default=[],
+    p.add_argument("--override", action="append", type=field_value, default=[],
                    metavar="FIELD=VALUE", help="replace a preset field (JSON value), e.g. "
                    "surrogate_hw=[256,1024]; repeatable")
     p.add_argument("--input-order", choices=("bgr", "rgb"), default="bgr",
@@ -53,7 +44,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from gijax.train.bundle import load_bundle
+    from gijax.store import load_bundle
     from gijax.train.import_release import import_release_weights
 
     out = import_release_weights(args.src, args.preset, args.out,

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
+import argparse
+import textwrap
 
 import numpy as np
 
@@ -12,33 +12,42 @@ DESCRIPTION = """\
 Run a model on one image per camera and write, under --out: distance.npy (float32 metres,
 160 x 640 at paper size), valid.npy / valid.png (per-pixel validity: True / 255 where a
 distance was estimated), inverse_distance.png (colour map with a colour bar in metres),
-uncertainty.png (entropy of the candidate distribution), points.ply (coloured point cloud in
-the rig frame) and prediction.json.
+uncertainty.png (entropy of the learned model's candidate distribution; the classical
+baseline has none and writes no such file), rgb.png (the colour panorama: each pixel the mean
+colour of its predicted point over the cameras that see it), points.ply (coloured point cloud
+in the rig frame) and prediction.json.
 
 Invalid pixels (seen by too few cameras, e.g. masked out), for every method: NaN in
-distance.npy, False / 0 in valid.npy / valid.png, black in both colour maps, no point in
-points.ply; prediction.json gives valid_fraction and valid_pixels.
+distance.npy (never inf), False / 0 in valid.npy / valid.png, black in the colour maps and
+rgb.png, no point in points.ply; prediction.json gives valid_fraction and valid_pixels.
 
-The model comes from a training run folder or an inference bundle (--ckpt), from an exported
-ONNX file run by onnxruntime (--backend onnx --onnx FILE), or, for trying the pipeline, from a
-preset with random weights (--preset; the outputs are then labelled UNTRAINED).
---method rtss runs the classical sphere-sweep stereo baseline instead (no model needed;
---rtss-preset picks RS-E16, RS-G16, RS-E32, RS-G32 or RS-E32-AD, the last with the
-paper's 1x1 absolute-difference cost).
+Image size, for every method: images of the rig's aspect ratio but another size are resized
+to what the method works at (the learned model: the rig's size times its image scale; the
+baseline works at the images' own size and rescales the lenses instead), with a note; images
+of another aspect ratio are refused.
 
-Candidates: 'train' (default) uses the training list (from the run folder; for a preset, the
-preset's kind in closed form: EV or GI with the paper's baseline); 'spacing' is the paper's
-list recomputed for the given rig (Table II): the closed-form GI list with the rig's camera
-spacing as the baseline (same count, no retraining needed); 'rig' is gijax's extension,
-rig-aware GI (equal mean pixel steps over the panorama's rays and the rig's cameras; on the
-training rig it is close to EV, not to the released G16); 'ev' evenly spaced; or a file with
-one distance in metres per line, or a JSON list.
+The model comes from a training run folder, an inference bundle or a bundled model by name
+(--ckpt; 'gijax models' lists them), from an exported ONNX file run by onnxruntime (--backend
+onnx --onnx FILE), or, for trying the pipeline, from a preset with random weights (--preset;
+the outputs are then labelled UNTRAINED).
+--method rtss runs the classical sphere-sweep stereo baseline instead: it has no model, so
+--ckpt, --preset and --backend onnx are refused with it; --rtss-preset picks RS-E16, RS-G16,
+RS-E32, RS-G32 or RS-E32-AD (the last with the paper's 1x1 absolute-difference cost). Its
+default candidates are the preset's own list (RS-E32: 32 candidates even in inverse distance,
+0.5-100 m; the G presets derive theirs from the rig), printed at run time.
+
+{candidates}
 """
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("predict", help=HELP, description=DESCRIPTION,
-                              formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
+    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
+    from gijax.cli.options import CKPT_HELP
+
+    description = DESCRIPTION.format(
+        candidates=textwrap.fill("Candidates (--candidates): " + CANDIDATES_HELP, 95))
+    p = subparsers.add_parser("predict", help=HELP, description=description,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--method", choices=("learned", "rtss"), default="learned",
                    help="learned network (default) or the classical RTSS baseline")
     p.add_argument("--rtss-preset", default="RS-E32", metavar="NAME",
@@ -48,8 +57,7 @@ def register(subparsers) -> None:
                         "onnxruntime (CPU, or CUDA where available)")
     p.add_argument("--onnx", metavar="FILE", help="exported model for --backend onnx")
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--ckpt", metavar="PATH", help="training run folder (config.json + "
-                     "checkpoints)")
+    src.add_argument("--ckpt", metavar="PATH|NAME", help=CKPT_HELP)
     src.add_argument("--preset", metavar="NAME|FILE", help="model preset (e.g. G16VV-cpu) or a "
                      "JSON file of ModelConfig fields, with random, UNTRAINED weights")
     p.add_argument("--rig", required=True, metavar="NAME|FILE",
@@ -60,85 +68,24 @@ def register(subparsers) -> None:
     p.add_argument("--masks", nargs="+", metavar="MASK",
                    help="optional validity masks per camera (non-zero = valid); default: the "
                         "rig's own masks")
-    p.add_argument("--candidates", default="train", metavar="train|spacing|rig|ev|FILE",
-                   help="distance candidates (see above); default: train")
+    p.add_argument("--candidates", default=None, metavar=METAVAR,
+                   help="distance candidates (see above); default: 'train' (the model's "
+                        "training list) for the learned model, the preset's own list for "
+                        "--method rtss")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.set_defaults(func=run)
 
 
-def read_image(path: str, grey: bool = False) -> np.ndarray:
-    import cv2
-
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"{path}: no such image")
-    img = cv2.imread(path, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError(f"{path}: not a readable image")
-    if grey:
-        return img
-    if img.ndim == 2:
-        img = np.repeat(img[..., None], 3, axis=-1)
-    elif img.shape[-1] == 4:
-        img = img[..., :3]
-    if img.dtype == np.uint16:
-        img = (img / 257.0 + 0.5).astype(np.uint8)
-    return np.ascontiguousarray(img[..., ::-1])  # BGR -> RGB
-
-
-def read_candidates(path: str) -> np.ndarray:
-    """Distances (metres) from a candidate file: a JSON list or one number per line."""
-    from gijax.cli.cmd_train import read_candidate_file
-
-    return np.asarray(read_candidate_file(path), np.float64)
-
-
-def resolve_candidates(spec: str, config, rig, train_candidates) -> tuple[np.ndarray, str]:
-    """(candidates in metres, description) for --candidates ``spec``."""
-    n = config.num_candidates
-    if spec == "train":
-        if train_candidates is not None:
-            return np.asarray(train_candidates, np.float64), "training list"
-        from gijax.candidates.closed_form import ev_candidates, gi_candidates
-
-        fn = ev_candidates if config.candidates == "ev" else gi_candidates
-        c = fn(n, config.d_min, config.d_max)
-        return np.asarray(c, np.float64), f"{config.candidates.upper()} closed form"
-    from gijax.candidates import RECOMPUTED, recomputed_candidates
-
-    if spec in RECOMPUTED:
-        c = recomputed_candidates(spec, n, rig, config.d_min, config.d_max)
-        label = {"spacing": "the paper's GI at the rig's camera spacing",
-                 "rig": "rig-aware GI (gijax extension)", "ev": "EV"}[spec]
-        return np.asarray(c, np.float64), label
-    return read_candidates(spec), f"from {spec}"
-
-
-def preset_config(spec: str):
-    """A preset name, or a JSON file holding ModelConfig fields -> ModelConfig."""
-    from gijax.nn.presets import ModelConfig, get_preset
-
-    if not spec.lower().endswith(".json"):
-        return get_preset(spec)
-    path = Path(spec)
-    if not path.is_file():
-        raise FileNotFoundError(f"{spec}: no such model configuration file")
-    try:
-        fields = json.loads(path.read_text())
-        return ModelConfig(**{k: tuple(v) if isinstance(v, list) else v
-                              for k, v in fields.items()})
-    except (json.JSONDecodeError, TypeError) as exc:
-        raise ValueError(f"{spec}: not a JSON object of ModelConfig fields ({exc})") from exc
-
-
 def run(args) -> int:
-    from gijax.io.rigfile import load_rig
-    from gijax.model import create_model
+    from gijax.data.images import read_image, read_mask
+    from gijax.io.masks import warn_if_unmasked
     from gijax.io.paths import check_output_dir
-    from gijax.predict import load_model, predict
+    from gijax.io.rigfile import load_rig
 
     check_output_dir(args.out)
     rig = load_rig(args.rig)
+    warn_if_unmasked(rig, args.rig, other_masks=args.masks is not None)
     if len(args.images) != rig.num_cameras:
         raise ValueError(f"rig {args.rig!r} has {rig.num_cameras} cameras but "
                          f"{len(args.images)} images were given")
@@ -150,105 +97,102 @@ def run(args) -> int:
         raise ValueError(f"all images must have the same size; found {sorted(shapes)}")
     masks = None
     if args.masks is not None:
-        masks = np.stack([(read_image(p, grey=True) > 0).astype(np.float32) for p in args.masks])
+        masks = np.stack([read_mask(p) for p in args.masks])
     if args.method == "rtss":
+        # The baseline has no weights: a model named with it would be silently unused.
+        given = [opt for opt, on in (("--ckpt", args.ckpt), ("--preset", args.preset),
+                                     ("--backend onnx", args.backend == "onnx")) if on]
+        if given:
+            raise ValueError(f"--method rtss runs the classical baseline, which uses no model; "
+                             f"drop {' and '.join(given)} (or use --method learned)")
         return _run_rtss(args, rig, np.stack(images), masks)
+    if args.candidates is None:
+        args.candidates = "train"
     if args.backend == "onnx":
         return _run_onnx(args, rig, np.stack(images), masks)
     if not (args.ckpt or args.preset):
         raise ValueError("the learned method needs --ckpt RUN (or --preset NAME for an untrained "
                          "model)")
-    if args.ckpt:
-        model, train_cand = load_model(args.ckpt)
-        label = f"{model.config.name} from {args.ckpt}"
-    else:
-        model, train_cand = create_model(preset_config(args.preset), seed=args.seed), None
-        label = f"UNTRAINED {model.config.name} (random weights, seed {args.seed})"
-    candidates, how = resolve_candidates(args.candidates, model.config, rig, train_cand)
-    result = predict(model, rig, np.stack(images), masks, candidates)
+    return _run_learned(args, rig, np.stack(images), masks)
+
+
+def _run_learned(args, rig, images: np.ndarray, masks) -> int:
+    from gijax.candidates.spec import resolve_candidates
+    from gijax.predict import predict
+
+    from gijax.store import model_or_untrained
+
+    model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
+    candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
+                                         config.d_min, config.d_max, train=train_cand,
+                                         kind=config.candidates)
+    result = predict(model, rig, images, masks, candidates, log=print)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args.out, title)
     return 0
 
 
 def _report(result: dict, rig, out: str, title: str) -> None:
-    from gijax.predict import write_prediction
+    from gijax.predict import mark_invalid, write_prediction
 
     paths = write_prediction(result, rig, out, title=title)
     print(title)
-    valid = np.asarray(result["valid"], bool)
-    median = (f"median {np.median(np.asarray(result['distance'])[valid]):.3f} m" if valid.any()
-              else "no valid pixel")
+    # The files' convention: only valid pixels with a finite distance count.
+    marked = mark_invalid(result)
+    valid = marked["valid"]
+    median = (f"median {np.median(marked['distance'][valid]):.3f} m over valid pixels"
+              if valid.any() else "no valid pixel")
     print(f"distance {result['distance'].shape}: {median}, valid {valid.mean() * 100:.1f} %")
     for kind, path in paths.items():
         print(f"  {kind:22s} {path}")
 
 
-def _colours(rig, images: np.ndarray, masks, distance: np.ndarray) -> np.ndarray:
-    import jax.numpy as jnp
-
-    from gijax.predict import _point_colours
-    from gijax.sweep.surrogate import as_float_image
-
-    colour_rig = rig if masks is None else rig.replace(
-        masks=tuple(jnp.asarray(m, jnp.float32) for m in masks))
-    return np.asarray(_point_colours(colour_rig, as_float_image(images),
-                                     jnp.asarray(np.nan_to_num(distance, nan=1.0))))
-
-
 def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     """The classical baseline at the images' own size; the panorama is the paper's 160 x 640."""
-    from gijax.baseline.rtss import get_rtss_preset, preset_candidates, rtss_predict_sample
-
-    from gijax.geometry.rig import scale_rig
+    from gijax.baseline.rtss import choose_candidates, get_rtss_preset, rtss_predict_sample
+    from gijax.predict import fit_images, point_colours
 
     config = get_rtss_preset(args.rtss_preset)
-    cam = rig.cameras[0]
-    if images.shape[1:3] != (cam.height, cam.width):
-        # Images smaller than the calibration (e.g. the -cpu size): the same lens, resized.
-        factor = images.shape[2] / cam.width
-        rig = scale_rig(rig, factor)
-        if images.shape[1:3] != (rig.cameras[0].height, rig.cameras[0].width):
-            raise ValueError(f"images are {images.shape[1]} x {images.shape[2]}; the rig's "
-                             f"cameras are {cam.height} x {cam.width} (another aspect ratio)")
-    candidates = (preset_candidates(rig, config) if args.candidates == "train" else
-                  resolve_candidates(args.candidates, config, rig, None)[0])
+    rig, images, masks = fit_images(rig, images, masks, None, log=print)
+    candidates, how = choose_candidates(args.candidates, rig, config)
+    print(f"candidates: {how}; {len(candidates)} from {float(candidates[0]):.3f} to "
+          f"{float(candidates[-1]):.3f} m")
     sample = {"images": images}
     if masks is not None:
         sample["masks"] = masks
     result = rtss_predict_sample(rig, sample, args.rtss_preset, candidates=candidates)
     valid = np.asarray(result["valid"], bool)
     result = {
-        # Invalid pixels are NaN here already; write_prediction applies the same convention
-        # to every method's result.
         "inv_distance": np.asarray(result["inv_distance"], np.float32),
         "distance": np.asarray(result["distance"], np.float32),
         "valid": valid,
-        # The baseline has no candidate distribution; its uncertainty map is left at zero.
-        "entropy": np.zeros(valid.shape, np.float32),
+        # No "entropy": the baseline's winner-take-all has no candidate distribution, and a
+        # constant map would read as "certain everywhere".
         "candidates": np.asarray(candidates, np.float64),
     }
-    result["colour"] = _colours(rig, images, masks, np.where(valid, result["distance"], 1.0))
-    _report(result, rig, args.out, f"classical baseline {args.rtss_preset}")
+    result["colour"] = point_colours(rig, images, masks, result["distance"])
+    _report(result, rig, args.out, f"classical baseline {args.rtss_preset}; candidates: {how}")
     return 0
 
 
 def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
+    from gijax.candidates.spec import resolve_candidates
     from gijax.export.ort_predict import OnnxPredictor
+    from gijax.predict import point_colours
 
     if not args.onnx:
         raise ValueError("--backend onnx needs --onnx FILE (an exported model)")
     pred = OnnxPredictor(args.onnx)
     candidates = None
-    if args.candidates != "train":
-        from gijax.nn.presets import ModelConfig
+    if args.candidates != "train":  # the exported list is baked in unless another is asked for
+        from gijax.store.configs import model_config_from_dict
 
-        config = ModelConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                for k, v in pred.info.config.items()})
-        candidates = resolve_candidates(args.candidates, config, rig, None)[0]
+        config = model_config_from_dict(pred.info.config)
+        candidates = resolve_candidates(args.candidates, rig, config.num_candidates,
+                                        config.d_min, config.d_max)[0]
     result = pred.predict(rig, images, masks, candidates)
     small = pred.info.scaled_rig(rig)
     feed_images = pred.info.feed(rig, images, masks)[0]["images"][0]
-    result["colour"] = _colours(small, feed_images, None, result["distance"])
+    result["colour"] = point_colours(small, feed_images, None, result["distance"])
     _report(result, rig, args.out, f"ONNX model {args.onnx} (onnxruntime)")
     return 0

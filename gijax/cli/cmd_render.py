@@ -1,20 +1,12 @@
-"""``gijax render``: generate a procedural multi-fisheye dataset in the dataset format.
-
-Sample i is rendered from seed ``sample_seed(seed, i)`` (recorded in the CSV). Writing is
-crash-safe and re-running the same command resumes after the last complete sample. The
-requested count goes into the manifest first, so an interrupted dataset reads as incomplete,
-and the folder is locked while the command writes it.
-"""
+"""``gijax render``: generate a procedural multi-fisheye dataset in the dataset format
+(:func:`gijax.data.rendered.render_dataset`; the folder is locked while it is written)."""
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from gijax.data.writer import DatasetWriter, sample_seed
 from gijax.geometry.panorama import Panorama
-from gijax.geometry.rig import Rig, scale_rig
-from gijax.io.paths import check_output_dir
+from gijax.geometry.rig import Rig
 from gijax.io.rigfile import load_rig
 
 STYLES = ("mixed", "indoor", "outdoor")
@@ -48,37 +40,16 @@ def _scale_for(rig: Rig, args) -> float:
 
 
 def run(args) -> int:
-    from tqdm import tqdm
-
-    from gijax.render import render_sample
+    from gijax.data.rendered import render_dataset
 
     if args.samples < 1:
         raise ValueError(f"--samples must be >= 1; found {args.samples}")
-    check_output_dir(args.out)
     base = load_rig(args.rig)
-    scale = _scale_for(base, args)
-    rig = base if scale == 1.0 else scale_rig(base, scale)
     h, w = args.pano
     pano = Panorama.sphere(h, w) if args.full_sphere else Panorama.hemisphere(h, w)
-    # The settings that determine every sample's content; the target count is not one of them,
-    # so a later run may extend the dataset.
-    generator = {"renderer": "gijax.render.render_sample", "seed": int(args.seed),
-                 "style": args.style, "image_scale": scale}
-    with DatasetWriter(Path(args.out), rig, pano, trajectory_size=args.trajectory_size,
-                       generator=generator, durable=args.durable) as writer:
-        done = writer.num_committed
-        writer.request(args.samples)
-        if done >= args.samples:
-            print(f"{args.out}: already holds {done} samples (asked for {args.samples}); "
-                  f"nothing to do")
-            return 0
-        if done:
-            print(f"{args.out}: resuming after {done} complete samples")
-        with tqdm(total=args.samples, initial=done, unit="sample", desc="render") as bar:
-            for i in range(done, args.samples):
-                seed_i = sample_seed(args.seed, i)
-                writer.write(render_sample(rig, seed_i, pano=pano, style=args.style), seed=seed_i)
-                bar.update(1)
+    rig = render_dataset(base, args.out, args.samples, seed=args.seed,
+                         image_scale=_scale_for(base, args), pano=pano, style=args.style,
+                         trajectory_size=args.trajectory_size, durable=args.durable, log=print)
     print(f"{args.out}: {args.samples} samples ({rig.num_cameras} cameras "
           f"{rig.cameras[0].width}x{rig.cameras[0].height}, panorama {w}x{h})")
     return 0

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
+
+from gijax.cli.options import field_value
 
 
 def register(subparsers) -> None:
@@ -51,7 +51,8 @@ def register(subparsers) -> None:
     p.add_argument("--coordinator", default=None, help="host:port of process 0 (multi-host)")
     p.add_argument("--num-processes", type=int, default=None)
     p.add_argument("--process-id", type=int, default=None)
-    p.add_argument("--override", action="append", default=[], metavar="FIELD=VALUE",
+    p.add_argument("--override", action="append", type=field_value, default=[],
+                   metavar="FIELD=VALUE",
                    help="replace a network configuration field of the preset (JSON value), "
                         "e.g. --override 'cost_hw=[8,32]'; repeatable")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -63,100 +64,31 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def read_candidate_file(path: str) -> list:
-    """A JSON list of distances (metres) or a text file of numbers (one per line or comma
-    separated); a JSON object is read through its ``candidates`` key."""
-    f = Path(path)
-    if not f.is_file():
-        raise FileNotFoundError(f"candidate file {f} does not exist")
-    text = f.read_text()
-    try:
-        values = json.loads(text)
-    except json.JSONDecodeError:
-        try:
-            values = [float(t) for t in text.replace(",", " ").split()]
-        except ValueError as exc:
-            raise ValueError(f"candidate file {f}: expected a JSON list or one number per line "
-                             f"({exc})") from exc
-    if isinstance(values, dict):
-        values = values.get("candidates")
-    if not isinstance(values, list) or not values:
-        raise ValueError(f"candidate file {f}: expected a non-empty list of distances in metres")
-    return [float(v) for v in values]
-
-
-def parse_overrides(items) -> dict:
-    """``['a=1', 'b=[2,3]']`` -> ``{'a': 1, 'b': [2, 3]}`` (values are JSON, else strings)."""
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"--override expects FIELD=VALUE; found {item!r}")
-        key, value = item.split("=", 1)
-        try:
-            out[key.strip()] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key.strip()] = value
-    return out
-
-
-def check_data(reader, what: str, args) -> None:
-    """Read every file of a gijax-layout dataset before training (``--no-data-check`` skips)."""
-    from gijax.data import DatasetReader
-
-    if not args.no_data_check and isinstance(reader, DatasetReader):
-        from gijax.cli.cmd_data import require_clean
-
-        require_clean(reader.root, what, args.allow_partial, not args.no_progress)
-
-
 def run(args) -> int:
     from gijax.io.paths import check_output_dir
     from gijax.train.trainer import init_distributed
 
     check_output_dir(args.out)
     init_distributed(args.coordinator, args.num_processes, args.process_id)
+    from gijax.candidates.spec import read_candidate_file
     from gijax.train.config import TrainConfig
-    from gijax.train.sources import (dataset_stream_factory, open_dataset, validation_batches)
-    from gijax.train.trainer import Trainer
+    from gijax.train.entry import train
 
     cfg = TrainConfig(
-        preset=args.preset, model_overrides=parse_overrides(args.override), lr=args.lr, schedule=args.schedule, warmup_steps=args.warmup_steps,
-        clip_norm=args.clip_norm, batch_size=args.batch, grad_accum=args.grad_accum,
-        steps=args.steps, seed=args.seed, bf16=args.bf16, val_every=args.val_every,
-        val_batches=args.val_batches, ckpt_every=args.ckpt_every, keep=args.keep,
-        keep_best=bool(args.val), workers=args.workers,
-        candidates=read_candidate_file(args.candidates) if args.candidates else None)
-    mc = cfg.model_config()
-    reader = open_dataset(args.data, "training", args.allow_partial)
-    check_data(reader, "training", args)
-    if args.rig:
-        from gijax.io.rigfile import load_rig
-
-        rig = load_rig(args.rig)
-    else:
-        rig = reader.rig
-    make_stream = dataset_stream_factory(reader, rig, cfg.batch_size, cfg.seed, mc.surrogate_hw,
-                                         mask_augmentation=mc.mask_augmentation,
-                                         workers=cfg.workers)
-    make_val, val_rig = None, None
-    if args.val:
-        val_reader = open_dataset(args.val, "validation", args.allow_partial)
-        check_data(val_reader, "validation", args)
-        make_val = lambda: validation_batches(val_reader, val_reader.rig, cfg.batch_size,  # noqa: E731
-                                              mc.surrogate_hw, cfg.val_batches)
-        val_rig = val_reader.rig
-    trainer = Trainer(cfg, args.out, rig, make_stream, make_val, rig_name=args.rig or str(args.data),
-                      progress=not args.no_progress, val_rig=val_rig)
-    try:
-        history = trainer.fit()
-    finally:
-        trainer.close()
-    losses = [r["loss"] for r in history if "loss" in r]
-    vals = [r for r in history if r.get("split") == "val"]
-    if losses:
-        print(f"trained {args.out} to step {trainer.start_step}: last loss {losses[-1]:.5f}")
-    if vals:
-        v = vals[-1]
+        preset=args.preset, model_overrides=dict(args.override), lr=args.lr,
+        schedule=args.schedule, warmup_steps=args.warmup_steps, clip_norm=args.clip_norm,
+        batch_size=args.batch, grad_accum=args.grad_accum, steps=args.steps, seed=args.seed,
+        bf16=args.bf16, val_every=args.val_every, val_batches=args.val_batches,
+        ckpt_every=args.ckpt_every, keep=args.keep, keep_best=bool(args.val),
+        workers=args.workers,
+        candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
+    result = train(cfg, args.data, args.out, val=args.val, rig=args.rig,
+                   allow_partial=args.allow_partial, check_data=not args.no_data_check,
+                   progress=not args.no_progress)
+    if result.last_loss is not None:
+        print(f"trained {args.out} to step {result.step}: last loss {result.last_loss:.5f}")
+    v = result.last_validation
+    if v is not None:
         print(f"validation at step {v['step']}: MAE {v['mae']:.4f}  RMSE {v['rmse']:.4f}  "
               f"SSIM {v['ssim']:.4f} (inverse distance, 1/m)")
     return 0

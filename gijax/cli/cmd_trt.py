@@ -74,7 +74,7 @@ def run_engine_cmd(args) -> int:
             onnx_path = json.loads(record.read_text()).get("onnx")
         if not onnx_path:
             raise ValueError("pass --onnx MODEL.onnx (the engine has no build record)")
-        from gijax.cli.cmd_predict import read_image
+        from gijax.data.images import read_image
         from gijax.export.ort_predict import ExportInfo
         from gijax.io.rigfile import load_rig
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from gijax.data import pngio
 from gijax.geometry import cameras as cam_lib
-from gijax.geometry.occluder import Cylinder
+from gijax.geometry.occluder import FAR, Cylinder
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig
 
@@ -50,7 +50,6 @@ PANO_FRAME = "pano"
 RIG_FRAME = "rig"
 DEFAULT_TRAJECTORY_SIZE = 1000
 DEFAULT_DISTANCE_RANGE = (0.5, 100.0)
-SKY_DISTANCE = 1e6
 # The column kinds of a file list, per camera; the panorama has one distance column.
 CAMERA_KINDS = ("rgb", "distance", "mask")
 
@@ -130,7 +129,7 @@ def camera_from_json(doc: dict, path) -> Any:
 
 
 def metadata_doc(rig: Rig, pano: Panorama, distance_range=DEFAULT_DISTANCE_RANGE,
-                 sky_distance: float = SKY_DISTANCE) -> dict:
+                 sky_distance: float = FAR) -> dict:
     """metadata.json for a rig and a ground-truth panorama."""
     names = list(rig.names)
     # Mask file names are the ones gijax.io.rigfile.save_rig writes beside rig/rig.yaml.

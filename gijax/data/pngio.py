@@ -10,7 +10,8 @@
   files are viewable); reading maps any non-zero value to 1.
 
 Every writer goes through :func:`atomic_write_bytes`: the bytes land in a temporary name in
-the same folder, then ``os.replace`` renames it, so a file either exists complete or not at all.
+the same folder, then ``os.replace`` renames it, so a file either exists complete or not at all
+(:func:`gijax.io.paths.write_bytes_atomic`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from gijax.io.paths import write_bytes_atomic
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # Every complete PNG ends with this 12-byte IEND chunk (length 0, type, fixed CRC).
 PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
@@ -29,15 +32,9 @@ PARTIAL_SUFFIX = ".partial"
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, durable: bool = False) -> None:
-    """Write ``data`` to ``path`` via ``path.partial`` + rename (fsync first when ``durable``)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + PARTIAL_SUFFIX)
-    with open(tmp, "wb") as f:
-        f.write(data)
-        if durable:
-            f.flush()
-            os.fsync(f.fileno())
-    os.replace(tmp, path)
+    """Write ``data`` to ``path`` atomically (fsync first when ``durable``); the temporary's
+    name ends in :data:`PARTIAL_SUFFIX`, so the leftovers of a killed writer can be found."""
+    write_bytes_atomic(path, data, suffix=PARTIAL_SUFFIX, fsync=durable)
 
 
 def pack_float32(values: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ import numpy as np
 
 from gijax.data import format as fmt
 from gijax.data import pngio
+from gijax.geometry.occluder import FAR
 from gijax.io.lock import describe_holder, holder_of
 
 VERIFY_MODES = ("none", "exists", "full")
@@ -84,7 +85,7 @@ class DatasetReader(RowReader):
         self.names = list(self.rig.names)
         self.distance_range = tuple(self.metadata.get("distance_range",
                                                       fmt.DEFAULT_DISTANCE_RANGE))
-        self.sky_distance = float(self.metadata.get("sky_distance", fmt.SKY_DISTANCE))
+        self.sky_distance = float(self.metadata.get("sky_distance", FAR))
         self._rig_masks = [None if m is None else np.asarray(m > 0.5, np.uint8)
                            for m in self.rig.masks]
         self.skip_bad = skip_bad

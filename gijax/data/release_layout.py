@@ -57,6 +57,7 @@ from gijax.data import format as fmt
 from gijax.data import pngio
 from gijax.data.reader import VERIFY_MODES, RowReader, Skipped
 from gijax.geometry import cameras as cam_lib
+from gijax.geometry.occluder import FAR
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import make_rig
 
@@ -73,7 +74,6 @@ RIG_KEY = "rig"
 RIG_RAW_FRAME = "rif"       # hard-coded in the release (find_rig_raw_frame)
 RIG_LABEL_FRAME = "rifs"    # map_camera_frame["rig"] of the release's configurations
 LABEL_PANO = Panorama.hemisphere(160, 640)
-DIST_AT_INFINITY = 1e6      # value of label pixels the rig camera does not see
 BLEND_THRESHOLD_SCALE = 0.01  # BlendBy2ndOrderGradTorch threshold_scaling_factor in the release
 BLEND_THRESHOLD_MAX = 10.0
 # Rotation taking release-panorama (rifs) coordinates to gijax panorama coordinates.
@@ -425,7 +425,7 @@ class LabelResampler:
         nearest = np.where(inside, raw[yi, xi], 0.0)
         f = np.where(inside, blend_factor(raw)[yi, xi], 0.0)
         out = f * nearest + (1 - f) * linear
-        out = np.where(self.valid, out, DIST_AT_INFINITY)
+        out = np.where(self.valid, out, FAR)
         # Release panorama column c holds gijax panorama column W - 1 - c (mirror image).
         return np.ascontiguousarray(out[:, ::-1]).astype(np.float32)
 
@@ -531,7 +531,7 @@ class ReleaseDatasetReader(RowReader):
         self.split, self.pano = split, pano
         self.rgb_suffix, self.dist_suffix = rgb_suffix, dist_suffix
         self.distance_range = fmt.DEFAULT_DISTANCE_RANGE
-        self.sky_distance = DIST_AT_INFINITY
+        self.sky_distance = FAR
         self.skip_bad = skip_bad
         self.skipped: list[Skipped] = []
 

@@ -5,6 +5,9 @@ that are 0 exactly when the constraint holds. The smooth penalty is ``sum_k g_k^
 feasible layout, positive otherwise, with a gradient that pushes back towards the feasible set.
 The footprint and height bounds also have an exact Euclidean projection, applied after every
 optimiser step. The number of cameras is fixed by the shape of the parameters.
+
+Everything is traceable (jit, vmap, grad in the layout; the spec is static) except
+:func:`constraint_report`, a plain-Python summary for reports.
 """
 
 from __future__ import annotations
@@ -18,15 +21,9 @@ import numpy as np
 from gijax.design.objective import free_layout
 from gijax.design.spec import DesignSpec, Layout
 from gijax.geometry.rotations import axis_angle_to_matrix
+from gijax.numerics import safe_norm
 
 Array = jax.Array
-_TINY = 1e-30
-
-
-def _safe_norm(x: Array, axis=-1) -> Array:
-    sq = jnp.sum(x * x, axis=axis)
-    return jnp.sqrt(jnp.where(sq > _TINY, sq, _TINY))
-
 
 def violations(layout: Layout, spec: DesignSpec, slack: float = 0.0) -> dict:
     """Per-constraint violations (each >= 0; 0 = satisfied), tightened by ``slack``.
@@ -47,15 +44,15 @@ def violations(layout: Layout, spec: DesignSpec, slack: float = 0.0) -> dict:
     half = spec.half_size
     if spec.shape == "square":
         out = jnp.maximum(jnp.abs(xy) - half, 0.0)
-        footprint = _safe_norm(out) * (jnp.max(out, axis=-1) > 0)
+        footprint = safe_norm(out) * (jnp.max(out, axis=-1) > 0)
     else:
-        footprint = jnp.maximum(_safe_norm(xy) - half, 0.0)
+        footprint = jnp.maximum(safe_norm(xy) - half, 0.0)
     diff = xy[:, None, :] - xy[None, :, :]
-    dist = _safe_norm(diff)
+    dist = safe_norm(diff)
     upper = jnp.triu(jnp.ones((n, n), bool), k=1)
     separation = jnp.where(upper, jnp.maximum(spec.min_separation + slack - dist, 0.0), 0.0)
     reach = spec.occluder_radius + spec.occluder_clearance + slack
-    occluder = jnp.maximum(reach - _safe_norm(xy), 0.0)
+    occluder = jnp.maximum(reach - safe_norm(xy), 0.0)
     if spec.orientations:
         axis_z = axis_angle_to_matrix(lay.rotvecs)[:, 2, 2]  # cos(tilt)
         limit = math.cos(math.radians(max(spec.max_tilt_deg - 100.0 * slack, 0.0)))
@@ -86,7 +83,7 @@ def project(layout: Layout, spec: DesignSpec) -> Layout:
     if spec.shape == "square":
         xy = jnp.clip(xy, -half, half)
     else:
-        r = _safe_norm(xy)[..., None]
+        r = safe_norm(xy)[..., None]
         xy = jnp.where(r > half, xy * (half / r), xy)
     h = layout.heights
     if spec.heights:
@@ -94,15 +91,15 @@ def project(layout: Layout, spec: DesignSpec) -> Layout:
     return layout.replace(positions=xy, heights=h)
 
 
-def is_feasible(layout: Layout, spec: DesignSpec, tol: float = 1e-9) -> bool:
-    """True when every violation is at most ``tol`` (concrete values)."""
-    return all(float(np.max(np.asarray(v), initial=0.0)) <= tol
-               for v in violations(layout, spec).values())
+def is_feasible(layout: Layout, spec: DesignSpec, tol: float = 1e-9) -> Array:
+    """True (a bool array) when every violation is at most ``tol``."""
+    return jnp.all(jnp.stack([jnp.all(v <= tol) for v in violations(layout, spec).values()]))
 
 
 def constraint_report(layout: Layout, spec: DesignSpec) -> dict:
     """Plain-Python summary: worst violation per constraint, smallest separation, smallest
-    clearance from the occluder axis (metres), largest tilt (degrees), feasible flag."""
+    clearance from the occluder axis (metres), largest tilt (degrees), feasible flag (floats
+    and a bool from concrete values, not traced)."""
     lay = free_layout(layout, spec)
     xy = np.asarray(lay.positions, np.float64)
     d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
@@ -113,5 +110,5 @@ def constraint_report(layout: Layout, spec: DesignSpec) -> dict:
            for k, v in violations(layout, spec).items()}
     rep.update(min_separation=float(d.min()), min_occluder_distance=float(
         np.linalg.norm(xy, axis=-1).min()), max_tilt_deg=float(tilt.max()),
-        feasible=is_feasible(layout, spec))
+        feasible=bool(is_feasible(layout, spec)))
     return rep

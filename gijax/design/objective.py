@@ -60,22 +60,17 @@ import math
 import jax
 import jax.numpy as jnp
 
-from gijax.candidates.rig_aware import RigTerms, solve_equal_steps
+from gijax.candidates import parallax as par
+from gijax.candidates.rig_aware import RigTerms, parallax_angles, solve_equal_steps
 from gijax.design.spec import DesignSpec, Layout
-from gijax.geometry import cameras as cam_lib
 from gijax.geometry.layouts import synthetic_camera
-from gijax.geometry.panorama import lonlat_grid, ray_grid
 from gijax.geometry.rotations import axis_angle_to_matrix
+from gijax.numerics import safe_denominator, safe_div, safe_norm, unit
 
 Array = jax.Array
-_TINY = 1e-30
 _EPS_PX = 1e-3  # pixels: keeps the step resolution finite where no camera moves the feature
 _FAR_MARGIN = 1.0  # metres: occluder margin of a segment that never reaches the cylinder's height
-
-
-def _norm(x: Array, axis=-1) -> Array:
-    sq = jnp.sum(x * x, axis=axis)
-    return jnp.sqrt(jnp.where(sq > _TINY, sq, _TINY))
+_FLAT = 1e-9  # |w_z| below which a segment counts as horizontal (never crosses a cap plane)
 
 
 def free_layout(layout: Layout, spec: DesignSpec) -> Layout:
@@ -99,14 +94,6 @@ def design_camera(spec: DesignSpec, dtype):
     return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), cam)
 
 
-def _rays(spec: DesignSpec, dt):
-    rays = ray_grid(spec.pano, dt).reshape(-1, 3)
-    _, lat = lonlat_grid(spec.pano, dt)
-    dlat = (spec.pano.lat_max - spec.pano.lat_min) / spec.pano.height
-    solid = (jnp.cos(lat) * dlat * (2.0 * math.pi / spec.pano.width)).reshape(-1)
-    return rays, solid
-
-
 def occluder_margin(spec: DesignSpec, origin: Array, target: Array) -> Array:
     """Signed distance (m) by which the segment ``origin -> target`` misses the occluder.
 
@@ -118,10 +105,10 @@ def occluder_margin(spec: DesignSpec, origin: Array, target: Array) -> Array:
     """
     z0, z1 = 0.0, spec.occluder_height
     v = target - origin
-    length = _norm(v)
-    w = v / length[..., None]
+    length = safe_norm(v)
+    w = unit(v)
     h, wz = origin[..., 2], w[..., 2]
-    up, down = wz > 1e-9, wz < -1e-9
+    up, down = wz > _FLAT, wz < -_FLAT
     wz_safe = jnp.where(up | down, wz, 1.0)
     inside = (h >= z0) & (h <= z1)
     t_a, t_b = (z0 - h) / wz_safe, (z1 - h) / wz_safe
@@ -131,48 +118,37 @@ def occluder_margin(spec: DesignSpec, origin: Array, target: Array) -> Array:
     hi = jnp.clip(t_out, 0.0, length)
     reaches = (t_out > jnp.maximum(t_in, 0.0)) & (t_in < length)
     oxy, wxy = origin[..., :2], w[..., :2]
-    wxy2 = jnp.sum(wxy * wxy, axis=-1)
-    t_star = -jnp.sum(oxy * wxy, axis=-1) / jnp.where(wxy2 > _TINY, wxy2, 1.0)
+    t_star = safe_div(-jnp.sum(oxy * wxy, axis=-1), jnp.sum(wxy * wxy, axis=-1))
     t_star = jnp.clip(t_star, lo, jnp.maximum(hi, lo))
-    closest = _norm(oxy + t_star[..., None] * wxy)
+    closest = safe_norm(oxy + t_star[..., None] * wxy)
     return jnp.where(reaches, closest - spec.occluder_radius, _FAR_MARGIN)
 
 
+# One compiled program per spec: the margins are most of the objective's work, and eager
+# callers (plots, reports) would otherwise dispatch their hundreds of operations one by one.
+@functools.partial(jax.jit, static_argnames=("spec",))
 def _margins(layout: Layout, spec: DesignSpec):
     """Field-of-view margins (C, S, R) radians, occluder margins (C, S, R) metres, lens
     clearance margins (C, R) metres, and the parallax terms p, q (C, R), pixel scales (C, R),
     solid angles (R,)."""
     rot, trans, ref = layout_pose(layout, spec)
     dt = trans.dtype
-    rays, solid = _rays(spec, dt)
-    frac = jnp.linspace(0.0, 1.0, spec.samples, dtype=dt)
-    ds = spec.d_min * (spec.d_max / spec.d_min) ** frac  # (S,)
+    rays, solid = par.panorama_rays(spec.pano, dt)
+    ds = par.sample_distances(spec.d_min, spec.d_max, spec.samples, dt)  # (S,)
     pts = ref + ds[:, None, None] * rays[None]  # (S, R, 3)
 
     view = pts[None] - trans[:, None, None, :]  # (C, S, R, 3) rig frame
     view_cam = jnp.einsum("csrk,ckj->csrj", view, rot)  # R_c^T v
-    off_axis = jnp.arctan2(_norm(view_cam[..., :2]), view_cam[..., 2])
+    off_axis = jnp.arctan2(safe_norm(view_cam[..., :2]), view_cam[..., 2])
     fov_margin = 0.5 * math.radians(spec.fov_deg) - off_axis
     occ_margin = occluder_margin(spec, trans[:, None, None, :], pts[None])
 
-    a = ref[None, :] - trans  # (C, 3)
-    p = a @ rays.T  # (C, R)
-    q = _norm(jnp.cross(a[:, None, :], rays[None, :, :]))
-    d_star = jnp.clip(-p, spec.d_min, spec.d_max)
-    closest = jnp.sqrt(q * q + (p + d_star) ** 2)
-    clear_margin = closest - 0.5 * spec.d_min
-
-    # Pixels per radian of the feature's motion (as in the rig-aware solver): the projection's
-    # Jacobian at the far-end direction r (camera frame) applied to the motion direction e.
+    # The same parallax terms, lens clearance and pixel scales as the rig-aware solver.
+    a, p, q = par.parallax_offsets(ref, trans, rays)  # (C, 3), (C, R)
+    clear_margin = par.closest_approach(p, q, spec.d_min, spec.d_max) - 0.5 * spec.d_min
     cam = design_camera(spec, dt)
-    move = (a[:, None, :] - p[..., None] * rays[None]) / q[..., None]  # (C, R, 3)
-
-    def px_per_rad(r_c, e):
-        v_cam, e_cam = rays @ r_c, e @ r_c
-        _, tangent = jax.jvp(lambda x: cam_lib.project(cam, x)[0], (v_cam,), (e_cam,))
-        return _norm(tangent)
-
-    scale = jax.vmap(px_per_rad)(rot, move)  # (C, R)
+    move = par.motion_directions(a, p, q, rays)  # (C, R, 3)
+    scale = jax.vmap(lambda r_c, e: par.pixels_per_radian(cam, r_c, rays, e))(rot, move)
     return fov_margin, occ_margin, clear_margin, p, q, scale, solid
 
 
@@ -216,7 +192,7 @@ def objective_terms(layout: Layout, spec: DesignSpec) -> dict:
     d = solve_equal_steps(terms, spec.num_candidates, spec.d_min, spec.d_max)
     u = 1.0 / d
     du = u[:-1] - u[1:]  # (n-1,) > 0
-    phi = jnp.arctan2(q[None] * u[:, None, None], 1.0 + p[None] * u[:, None, None])  # (n, C, R)
+    phi = parallax_angles(terms, u).reshape((-1,) + q.shape)  # (n, C, R)
     step_px = scale[None] * (phi[:-1] - phi[1:])  # (n-1, C, R)
     power = jnp.sum(v[None] * step_px ** 2, axis=1)  # (n-1, R)
     res = spec.pixel_error * du[:, None] / jnp.sqrt(power + _EPS_PX ** 2)
@@ -228,11 +204,11 @@ def objective_terms(layout: Layout, spec: DesignSpec) -> dict:
     coverage = jnp.sum(solid * m) / total
     hard_v = _visibility(fov_m, occ_m, clr_m, spec, hard=True)
     hard_cov = jnp.sum(solid * (jnp.sum(hard_v, axis=0) >= 2)) / total
-    wsum = jnp.maximum(jnp.sum(weight), _TINY)
+    wsum = safe_denominator(jnp.sum(weight))
     return {
         "objective": expected - spec.coverage_weight * coverage,
         "expected_error": expected,
-        "resolution": jnp.sum(solid * m * ray_res) / jnp.maximum(jnp.sum(solid * m), _TINY),
+        "resolution": jnp.sum(solid * m * ray_res) / safe_denominator(jnp.sum(solid * m)),
         "coverage": coverage,
         "hard_coverage": jax.lax.stop_gradient(hard_cov),
         "mean_step_px": jnp.sum(weight[None] * step_px) / wsum / (spec.num_candidates - 1),
@@ -244,12 +220,6 @@ def objective_terms(layout: Layout, spec: DesignSpec) -> dict:
 def objective(layout: Layout, spec: DesignSpec) -> Array:
     """J (1/m, lower is better) of one layout, without the constraint penalty."""
     return objective_terms(layout, spec)["objective"]
-
-
-@functools.partial(jax.jit, static_argnames=("spec",))
-def batch_objective_terms(layouts: Layout, spec: DesignSpec) -> dict:
-    """:func:`objective_terms` of a batch of layouts (leading axis), jitted."""
-    return jax.vmap(lambda lay: objective_terms(lay, spec))(layouts)
 
 
 def camera_counts(layout: Layout, spec: DesignSpec) -> Array:

@@ -1,10 +1,17 @@
 """Layout search: multi-start Adam on the penalised objective, random search, grid search.
 
 The objective and penalty are pure and jitted; the loops here are the only side-effecting code
-(a tqdm progress bar). Evaluation accounting, used to compare the methods at equal cost: one
-*evaluation* is one value of the penalised objective for one layout; a gradient step counts as
-one evaluation (its value) plus its gradient, which reverse-mode differentiation delivers for a
-small constant multiple of the value's cost (measured and reported by the experiment script).
+(a tqdm progress bar). Traceable (jit, vmap, grad in the layouts; spec static):
+:func:`total_loss`, :func:`batch_report`, :func:`stack_layouts`, :func:`index_layout` and
+:func:`random_layouts` (in its key). The searches (:func:`optimize_layout`,
+:func:`random_search`, :func:`grid_search`), :func:`evaluate_layouts` (chunked, NumPy out),
+:func:`terms_to_python`, :func:`grid_points`, :func:`regular_layout` (NumPy geometry of the
+spec) and :func:`layout_rig` (a concrete rig with rendered masks) are the eager edges.
+
+Evaluation accounting, used to compare the methods at equal cost: one *evaluation* is one value
+of the penalised objective for one layout; a gradient step counts as one evaluation (its value)
+plus its gradient, which reverse-mode differentiation delivers for a small constant multiple of
+the value's cost (measured and reported by the experiment script).
 """
 
 from __future__ import annotations
@@ -34,12 +41,6 @@ def total_loss(layout: Layout, spec: DesignSpec) -> Array:
     """Objective J plus ``penalty_weight`` times the (slack-tightened) constraint penalty."""
     return objective_terms(layout, spec)["objective"] + spec.penalty_weight * penalty(
         layout, spec, spec.slack)
-
-
-@functools.partial(jax.jit, static_argnames=("spec",))
-def batch_total_loss(layouts: Layout, spec: DesignSpec) -> Array:
-    """:func:`total_loss` of a batch of layouts (leading axis) -> (B,)."""
-    return jax.vmap(lambda lay: total_loss(lay, spec))(layouts)
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
@@ -165,7 +166,7 @@ class DesignResult:
 
 
 def terms_to_python(terms: dict) -> dict:
-    """:func:`objective_terms` output as floats and lists."""
+    """:func:`objective_terms` output as floats and lists (concrete values, not traced)."""
     return {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in terms.items()}
 
 

@@ -14,7 +14,6 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from gijax.geometry import cameras as cam_lib
 from gijax.geometry.rig import Rig, is_homogeneous
 
 Array = jax.Array
@@ -59,10 +58,3 @@ def rig_from_arrays(template: Rig, intrinsics: Array, rotations: Array, translat
         cams.append(dataclasses.replace(cam, **values))
     return template.replace(cameras=tuple(cams), rotations=rotations, translations=translations,
                             reference=reference, masks=tuple(None for _ in cams), occluder=None)
-
-
-def check_camera_model(rig: Rig) -> None:
-    """ValueError unless every camera's model is one gijax can project."""
-    for i, cam in enumerate(rig.cameras):
-        if type(cam) not in cam_lib.CAMERA_MODELS.values():
-            raise ValueError(f"camera {i}: unsupported camera type {type(cam).__name__}")

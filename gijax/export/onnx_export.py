@@ -35,7 +35,6 @@ import dataclasses
 import json
 import logging
 import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -46,8 +45,8 @@ from flax import nnx
 
 from gijax.export.graph import intrinsics_layout, rig_from_arrays
 from gijax.geometry.rig import Rig, scale_rig
-from gijax.model import OmniStereoNet, check_candidates, forward, make_grids
-from gijax.nn.layers import conv3d_mode
+from gijax.io.paths import atomic_path
+from gijax.model import OmniStereoNet, check_candidates, forward, make_grids, with_conv3d
 
 IMAGES, MASKS = "images", "masks"
 RIG_INPUTS = ("intrinsics", "rotations", "translations", "reference", "candidates")
@@ -165,7 +164,7 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
         raise ValueError(f"batch must be a positive integer; found {batch}")
     check_export_inputs(model, rig, candidates)
     run_rig = model_rig(cfg, rig)
-    view = eval_view(model)
+    view = eval_view(with_conv3d(model, "native"))  # one Conv node per 3-D conv
     fn = build_function(view, run_rig, candidates, rig_as_input)
     specs = _input_specs(cfg, run_rig, "B" if dynamic_batch else int(batch), rig_as_input)
     names = list(specs)
@@ -173,7 +172,7 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # per-constant serialisation notes are not actionable
     try:
-        with conv3d_mode("native"), warnings.catch_warnings():  # one Conv per 3-D conv
+        with warnings.catch_warnings():
             warnings.simplefilter("ignore", DeprecationWarning)  # jax2onnx's flax accessors
             proto = to_onnx(fn, list(specs.values()), opset=opset, model_name=f"gijax_{cfg.name}",
                             input_names=names, output_names=list(OUTPUTS))
@@ -226,14 +225,8 @@ def _save_atomic(proto, path: Path) -> None:
     import onnx
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".onnx.tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        onnx.save_model(proto, tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    with atomic_path(path) as tmp:
+        onnx.save_model(proto, str(tmp))
 
 
 # ----------------------------------------------------------------------------- legalisation

@@ -13,7 +13,10 @@ Every model exposes ``project(cam, points) -> (pixels, valid)`` and
 ``unproject(cam, pixels) -> (unit rays, valid)``, batched over any leading shape. Points that
 are behind the camera, outside the field of view, outside the model's valid domain or outside
 the image come back with ``valid = False`` and *finite* pixels; every square root and division
-is guarded so that gradients stay finite too (no NaN leaking through ``jnp.where``).
+is guarded (:mod:`gijax.numerics`) so that gradients stay finite too (no NaN leaking through
+``jnp.where``). Everything here is traceable (jit, vmap, grad in the points, pixels and
+intrinsics; model names and image sizes are static) except ``camera_params``, which returns
+Python floats for printing and files.
 """
 
 from __future__ import annotations
@@ -25,24 +28,19 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gijax.numerics import guard_floor, safe_div, safe_norm, safe_sqrt
+
 Array = jax.Array
 
-# Smallest squared radius treated as off-axis; below it the on-axis limit is used.
-_TINY = 1e-18
 # Newton iterations for the Kannala-Brandt inverse; quadratic convergence makes 12 ample
 # for any monotonic polynomial in float64, and the loop length is fixed so it is jit/grad-safe.
 _KB_NEWTON_ITERS = 12
 
 
-def _safe_sqrt(x: Array) -> Array:
-    """sqrt with a finite gradient at and below zero (the branch is masked by the caller)."""
-    return jnp.sqrt(jnp.where(x > _TINY, x, _TINY))
-
-
-def _safe_div(num: Array, den: Array) -> Array:
-    """num / den where den is replaced by 1 wherever it is not safely positive or negative."""
-    ok = jnp.abs(den) > 1e-12
-    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+def _off_axis(r2: Array) -> Array:
+    """Squared radii at which ``sqrt`` (and so ``theta / r``) is exact; below, the on-axis limit
+    is used (the same threshold as :func:`gijax.numerics.safe_sqrt`)."""
+    return r2 > guard_floor(r2)
 
 
 def _blend(alpha: Array, d: Array, z: Array, a2_rest: Array) -> Array:
@@ -57,13 +55,13 @@ def _blend(alpha: Array, d: Array, z: Array, a2_rest: Array) -> Array:
     """
     direct = alpha * d + (1.0 - alpha) * z
     conj_den = alpha * d - (1.0 - alpha) * z
-    conj = _safe_div(a2_rest + (2.0 * alpha - 1.0) * z * z, conj_den)
+    conj = safe_div(a2_rest + (2.0 * alpha - 1.0) * z * z, conj_den)
     return jnp.where((z < 0.0) & (alpha >= 0.5), conj, direct)
 
 
 def _field_of_view_ok(cam, points: Array) -> Array:
     """Angle between the point and +z at most fov/2, without an arccos (valid past 180 deg)."""
-    norm = _safe_sqrt(jnp.sum(points**2, axis=-1))
+    norm = safe_norm(points)
     return points[..., 2] >= jnp.cos(0.5 * cam.fov) * norm - 1e-12 * norm
 
 
@@ -128,13 +126,13 @@ class DoubleSphere:
         x, y, z = p[..., 0], p[..., 1], p[..., 2]
         xi, alpha = self.xi, self.alpha
         r2 = x * x + y * y
-        d1 = _safe_sqrt(r2 + z * z)
+        d1 = safe_sqrt(r2 + z * z)
         zs = xi * d1 + z
-        d2 = _safe_sqrt(r2 + zs * zs)
+        d2 = safe_sqrt(r2 + zs * zs)
         den = _blend(alpha, d2, zs, alpha * alpha * r2)
         # alpha/(1-alpha) below 0.5, (1-alpha)/alpha above: one expression, no 0/0 branch.
         w1 = jnp.minimum(alpha, 1.0 - alpha) / jnp.maximum(alpha, 1.0 - alpha)
-        w2 = (w1 + xi) / _safe_sqrt(2.0 * w1 * xi + xi * xi + 1.0)
+        w2 = (w1 + xi) / safe_sqrt(2.0 * w1 * xi + xi * xi + 1.0)
         pixels, ok = _to_pixels_ratio(self, x, y, den, d1)
         return pixels, (z > -w2 * d1) & ok
 
@@ -144,10 +142,10 @@ class DoubleSphere:
         r2 = mx * mx + my * my
         disc = 1.0 - (2.0 * alpha - 1.0) * r2
         valid = disc >= 0.0
-        mz = (1.0 - alpha * alpha * r2) / (alpha * _safe_sqrt(disc) + 1.0 - alpha)
+        mz = (1.0 - alpha * alpha * r2) / (alpha * safe_sqrt(disc) + 1.0 - alpha)
         inner = mz * mz + (1.0 - xi * xi) * r2
         valid &= inner >= 0.0
-        factor = (mz * xi + _safe_sqrt(inner)) / (mz * mz + r2)
+        factor = (mz * xi + safe_sqrt(inner)) / (mz * mz + r2)
         ray = jnp.stack([factor * mx, factor * my, factor * mz - xi], axis=-1)
         return ray, valid
 
@@ -172,7 +170,7 @@ class EUCM:
         x, y, z = p[..., 0], p[..., 1], p[..., 2]
         alpha, beta = self.alpha, self.beta
         br2 = beta * (x * x + y * y)
-        rho = _safe_sqrt(br2 + z * z)
+        rho = safe_sqrt(br2 + z * z)
         den = _blend(alpha, rho, z, alpha * alpha * br2)
         w = jnp.minimum(alpha, 1.0 - alpha) / jnp.maximum(alpha, 1.0 - alpha)
         pixels, ok = _to_pixels_ratio(self, x, y, den, rho)
@@ -184,7 +182,7 @@ class EUCM:
         r2 = mx * mx + my * my
         disc = 1.0 - (2.0 * alpha - 1.0) * beta * r2
         valid = disc >= 0.0
-        mz = (1.0 - beta * alpha * alpha * r2) / (alpha * _safe_sqrt(disc) + 1.0 - alpha)
+        mz = (1.0 - beta * alpha * alpha * r2) / (alpha * safe_sqrt(disc) + 1.0 - alpha)
         return jnp.stack([mx, my, mz], axis=-1), valid
 
 
@@ -216,19 +214,19 @@ class KannalaBrandt:
     def _project(self, p: Array) -> tuple[Array, Array]:
         x, y, z = p[..., 0], p[..., 1], p[..., 2]
         r2 = x * x + y * y
-        r = _safe_sqrt(r2)
+        r = safe_sqrt(r2)
         theta = jnp.arctan2(r, z)
         theta_d, slope = self._distort(theta)
-        off_axis = r2 > 1e-20
+        off_axis = _off_axis(r2)
         # On the axis theta_d / r -> 1 / z (z > 0 there); both branches are finite.
-        scale = jnp.where(off_axis, theta_d / r, _safe_div(1.0, z))
+        scale = jnp.where(off_axis, theta_d / r, safe_div(1.0, z))
         valid = (slope > 0.0) & (off_axis | (z > 0.0))
         return _to_pixels(self, scale * x, scale * y), valid
 
     def _unproject(self, px: Array) -> tuple[Array, Array]:
         mx, my = _normalised(px, self)
         r2 = mx * mx + my * my
-        theta_d = _safe_sqrt(r2)
+        theta_d = safe_sqrt(r2)
 
         def newton(_, theta):
             f, df = self._distort(theta)
@@ -239,7 +237,7 @@ class KannalaBrandt:
         # A root past pi (possible for a polynomial that turns back up) is not a direction.
         valid = ((slope > 0.0) & (jnp.abs(f - theta_d) < 1e-6 * (1.0 + theta_d)) & (theta >= 0.0)
                  & (theta <= jnp.pi))
-        scale = jnp.where(r2 > 1e-20, jnp.sin(theta) / theta_d, 1.0)
+        scale = jnp.where(_off_axis(r2), jnp.sin(theta) / theta_d, 1.0)
         return jnp.stack([scale * mx, scale * my, jnp.cos(theta)], axis=-1), valid
 
 
@@ -260,18 +258,18 @@ class Equidistant:
     def _project(self, p: Array) -> tuple[Array, Array]:
         x, y, z = p[..., 0], p[..., 1], p[..., 2]
         r2 = x * x + y * y
-        r = _safe_sqrt(r2)
+        r = safe_sqrt(r2)
         theta = jnp.arctan2(r, z)
-        off_axis = r2 > 1e-20
-        scale = jnp.where(off_axis, theta / r, _safe_div(1.0, z))
+        off_axis = _off_axis(r2)
+        scale = jnp.where(off_axis, theta / r, safe_div(1.0, z))
         valid = off_axis | (z > 0.0)
         return _to_pixels(self, scale * x, scale * y), valid
 
     def _unproject(self, px: Array) -> tuple[Array, Array]:
         mx, my = _normalised(px, self)
         r2 = mx * mx + my * my
-        theta = _safe_sqrt(r2)
-        scale = jnp.where(r2 > 1e-20, jnp.sin(theta) / theta, 1.0)
+        theta = safe_sqrt(r2)
+        scale = jnp.where(_off_axis(r2), jnp.sin(theta) / theta, 1.0)
         ray = jnp.stack([scale * mx, scale * my, jnp.cos(theta)], axis=-1)
         return ray, theta <= jnp.pi
 
@@ -292,7 +290,8 @@ def project(cam: Camera, points: Array) -> tuple[Array, Array]:
     pixels, valid = cam._project(points)
     pixels = jnp.where(jnp.isfinite(pixels), pixels, 0.0)
     # The camera centre itself has no direction.
-    nonzero = jnp.sum(points * points, axis=-1) > _TINY
+    sq = jnp.sum(points * points, axis=-1)
+    nonzero = sq > guard_floor(sq)
     valid = valid & nonzero & _field_of_view_ok(cam, points) & _in_image(cam, pixels)
     return pixels, valid
 
@@ -301,8 +300,7 @@ def unproject(cam: Camera, pixels: Array) -> tuple[Array, Array]:
     """Unproject pixels ``(..., 2)`` to unit rays ``(..., 3)`` in the camera frame, and validity."""
     pixels = jnp.asarray(pixels)
     ray, valid = cam._unproject(pixels)
-    norm = _safe_sqrt(jnp.sum(ray**2, axis=-1, keepdims=True))
-    ray = ray / norm
+    ray = ray / safe_norm(ray, keepdims=True)
     fallback = jnp.zeros_like(ray).at[..., 2].set(1.0)
     finite = jnp.all(jnp.isfinite(ray), axis=-1)
     ray = jnp.where(finite[..., None], ray, fallback)

@@ -28,6 +28,7 @@ from gijax.geometry.occluder import Cylinder
 from gijax.geometry.rig import Rig, make_rig, with_occlusion_masks
 
 TRAIN_BASELINE = 0.3095015413531889
+"""Side (m) of the training triangle: the baseline behind the released G16 and G8 lists."""
 IMAGE_SIZE = 1024
 FOCAL = 300.0
 FOV_DEG = 195.0

@@ -10,6 +10,9 @@ common optical axis of the cameras; for a per-camera surrogate image: that camer
 * Longitude ``lon = atan2(y, x)`` in [-180, 180) deg, column 0 edge at -180 deg.
 * Pixel centres follow the image convention of :mod:`gijax.geometry.cameras`: pixel (col, row)
   has its centre at lon = -pi + (col + 0.5) * 2 pi / W, lat = lat0 + (row + 0.5) * (lat1 - lat0) / H.
+
+Every function is traceable (jit, vmap, grad in the directions and pixels); a
+:class:`Panorama` is static.
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ import math
 
 import jax
 import jax.numpy as jnp
+
+from gijax.numerics import guard_floor, safe_sqrt
 
 Array = jax.Array
 
@@ -65,11 +70,16 @@ def lonlat_to_direction(lon: Array, lat: Array) -> Array:
 
 
 def direction_to_lonlat(d: Array) -> tuple[Array, Array]:
-    """Inverse of :func:`lonlat_to_direction` (direction need not be unit length)."""
+    """Inverse of :func:`lonlat_to_direction` (direction need not be unit length).
+
+    On the pole (``x = y = 0``) the longitude is 0 with a zero gradient (``atan2`` has none
+    there).
+    """
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    r = jnp.sqrt(jnp.maximum(x * x + y * y, 1e-30))
-    lon = jnp.arctan2(y, jnp.where(r > 1e-15, x, 1.0))
-    theta = jnp.arctan2(r, z)
+    sq = x * x + y * y
+    on_pole = sq <= guard_floor(sq)
+    lon = jnp.arctan2(jnp.where(on_pole, 0.0, y), jnp.where(on_pole, 1.0, x))
+    theta = jnp.arctan2(safe_sqrt(sq), z)
     return lon, theta - jnp.pi / 2
 
 

@@ -4,12 +4,16 @@ Rig frame: +z is the viewing axis shared by the cameras (the pole of the rig pan
 span the mounting plane; like the camera frame it is right-handed (x right, y down, z forward
 when seen from behind the cameras). Poses are camera-to-rig: a point ``p_c`` in camera i's
 frame is ``R_i @ p_c + t_i`` in the rig frame, so ``t_i`` is camera i's centre.
+
+A :class:`Rig` is a pytree: its poses, reference point, intrinsics and masks are leaves, so every
+function of a rig here is traceable (jit, vmap, grad in those leaves; camera indices and image
+sizes are static), except the reports :func:`pairwise_baselines` (NumPy) and
+:func:`describe_rig` (text), and the structural query :func:`is_homogeneous` (a Python bool).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Callable, Optional, Sequence
 
 import jax
@@ -166,31 +170,34 @@ def scale_rig(rig: Rig, factor: float) -> Rig:
                        c_old.height - 1)
         cols = np.clip(((np.arange(c_new.width) + 0.5) / factor - 0.5).round().astype(int), 0,
                        c_old.width - 1)
-        masks.append(jnp.asarray(np.asarray(m)[rows][:, cols]))
+        masks.append(jnp.asarray(m)[rows][:, cols])
     return rig.replace(cameras=cams, masks=tuple(masks))
 
 
 def pairwise_baselines(rig: Rig) -> np.ndarray:
-    """(N, N) distances between camera centres, metres."""
+    """(N, N) distances between camera centres, metres, as NumPy float64 (a report of concrete
+    values, not traced)."""
     t = np.asarray(rig.translations, np.float64)
     return np.linalg.norm(t[:, None] - t[None], axis=-1)
 
 
 def describe_rig(rig: Rig) -> str:
     """A human-readable summary: cameras, models, intrinsics, positions, fields of view,
-    pairwise baselines (metres), reference point and occluder."""
+    pairwise baselines (metres), reference point and occluder (text from concrete values, not
+    traced)."""
     from gijax.geometry.cameras import camera_params
+    from gijax.geometry.field_of_view import describe_field_of_view
 
     lines = [f"rig with {rig.num_cameras} camera(s); poses camera-to-rig, metres"]
     for i, cam in enumerate(rig.cameras):
         pos = np.asarray(rig.translations[i], np.float64)
         axis = np.asarray(rig.rotations[i], np.float64)[:, 2]
         intr = ", ".join(f"{k}={v:.6g}" for k, v in camera_params(cam).items())
-        fov = math.degrees(float(cam.fov))
+        fov = describe_field_of_view(cam)
         mask = rig.masks[i]
         valid = "" if mask is None else f", mask {float(np.asarray(mask).mean()) * 100:.1f}% valid"
         lines.append(f"  {rig.names[i]}: model {cam.MODEL}, {cam.width}x{cam.height} px, "
-                     f"fov {fov:.1f} deg{valid}")
+                     f"{fov}{valid}")
         lines.append(f"    intrinsics: {intr}")
         lines.append(f"    position [{pos[0]:+.4f}, {pos[1]:+.4f}, {pos[2]:+.4f}] m, optical axis "
                      f"[{axis[0]:+.3f}, {axis[1]:+.3f}, {axis[2]:+.3f}]")

@@ -4,29 +4,112 @@ the atomic write every output file goes through.
 A file where a folder is wanted (or the reverse) otherwise surfaces as an OSError from deep
 inside a writer, after the work that produced the output, and sometimes after temporary files
 were made.
+
+Atomic writes: the content goes to a new temporary file in the destination's folder (the same
+file system, so the final ``os.replace`` is a rename), is flushed to disk, and is then renamed
+over the destination. A reader sees the old file or the new one, never half of one; a write
+that fails removes its temporary and leaves the old file as it was.
+
+The temporary file is created with ``os.open(..., O_CREAT | O_EXCL, 0o666)`` rather than
+``tempfile.mkstemp``: mkstemp makes its files 0o600 on purpose, and after the rename that
+private mode would be the output's, so nobody else could read a rig file, a prediction or a
+dataset. Asking the kernel for 0o666 gives ``0o666 & ~umask`` (or what the folder's default ACL
+says, where one is set), exactly like any ordinary ``open``. The umask is thereby honoured
+without being read: reading it means ``os.umask(x); os.umask(old)``, which changes it for the
+whole process for a moment (a thread creating files in that window gets the wrong mode, and a
+lock only orders callers that take it), or parsing ``/proc/self/status``, which is Linux-only.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
-import tempfile
+import secrets
 from pathlib import Path
+from typing import Iterator
+
+# O_EXCL: never reuse (or follow a link at) an existing name; O_CLOEXEC: no child process
+# inherits the descriptor; O_BINARY exists only on Windows.
+_CREATE_FLAGS = (os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
+                 | getattr(os, "O_BINARY", 0))
+# File names are limited to 255 bytes; the temporary adds a dot, 8 hex digits and a suffix.
+_MAX_NAME_PART = 200
 
 
-def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` under a temporary name in ``path``'s folder, then rename it over ``path``:
-    a reader never sees a half-written file, and a failed write leaves no temporary behind."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(suffix=".tmp", dir=path.parent)
+def _create_temporary(path: Path, suffix: str) -> Path:
+    """A new, empty file ``.<name>.<random><suffix>`` beside ``path``, mode 0o666 less umask."""
+    name = path.name[:_MAX_NAME_PART]
+    for _ in range(100):
+        tmp = path.with_name(f".{name}.{secrets.token_hex(4)}{suffix}")
+        try:
+            os.close(os.open(tmp, _CREATE_FLAGS, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path.parent}: could not find a free temporary name for {path.name}")
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)  # mkstemp makes files private; outputs are meant to be read
-        os.replace(tmp, path)
+        os.fsync(fd)
     finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+        os.close(fd)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make a rename in ``folder`` durable; file systems that refuse fsync on a folder (some
+    network and FUSE ones) give no stronger promise, so a refusal is not an error."""
+    try:
+        _fsync(folder)
+    except OSError:
+        pass
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, *, suffix: str | None = None,
+                fsync: bool = True) -> Iterator[Path]:
+    """A temporary path to write ``path``'s content to, renamed over ``path`` when the block ends.
+
+    For writers that need a file name rather than bytes (``cv2.imwrite``, matplotlib's
+    ``savefig``, ``onnx.save_model``). The temporary exists (empty) when the block starts, and
+    writers keep its mode when they overwrite it. When the block raises, the temporary is
+    removed and ``path`` is left as it was.
+
+    Args:
+      path: the destination; its folder must exist.
+      suffix: end of the temporary's name; by default ``.tmp`` plus ``path``'s own extension,
+        since some writers choose the format by it (``cv2.imwrite``) or append one when it is
+        missing (``np.save``).
+      fsync: flush the content and the rename to disk (off only for bulk writers that accept
+        losing the last files of a power cut, e.g. datasets not written as durable).
+    """
+    path = Path(path)
+    tmp = _create_temporary(path, ".tmp" + path.suffix if suffix is None else suffix)
+    try:
+        yield tmp
+        if fsync:
+            _fsync(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    if fsync:
+        _fsync_folder(path.parent)
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes, *, suffix: str = ".tmp",
+                       fsync: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_path`); returns ``path``."""
+    path = Path(path)
+    with atomic_path(path, suffix=suffix, fsync=fsync) as tmp:
+        tmp.write_bytes(data)
     return path
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, *, fsync: bool = True) -> Path:
+    """Write ``text`` as UTF-8 to ``path`` atomically (see :func:`atomic_path`)."""
+    return write_bytes_atomic(path, text.encode("utf-8"), fsync=fsync)
 
 
 def _blocking_parent(path: Path) -> Path | None:
@@ -60,4 +143,5 @@ def check_output_file(path: str | os.PathLike, option: str = "--out") -> Path:
     return path
 
 
-__all__ = ["check_output_dir", "check_output_file"]
+__all__ = ["atomic_path", "check_output_dir", "check_output_file", "write_bytes_atomic",
+           "write_text_atomic"]

@@ -5,7 +5,7 @@ regressor, and the model presets."""
 from gijax.nn.build import NetworkParts, count_parameters, make_cost_volume, make_unet
 from gijax.nn.cost_volume import ConcatCostVolume, VarianceCostVolume, masked_variance
 from gijax.nn.features import FeatureExtractor
-from gijax.nn.layers import Conv3D, conv3d_mode, param_count
+from gijax.nn.layers import CONV3D_LOWERINGS, Conv3D, param_count
 from gijax.nn.presets import PRESETS, REFERENCE_PARAM_COUNTS, ModelConfig, get_preset
 from gijax.nn.regressor import regress
 from gijax.nn.spherical import SphericalConv, tangent_offsets
@@ -13,6 +13,7 @@ from gijax.nn.unet3d import UNet3D
 from gijax.nn.upsample import upsample2
 
 __all__ = [
+    "CONV3D_LOWERINGS",
     "PRESETS",
     "REFERENCE_PARAM_COUNTS",
     "ConcatCostVolume",
@@ -23,7 +24,6 @@ __all__ = [
     "SphericalConv",
     "UNet3D",
     "VarianceCostVolume",
-    "conv3d_mode",
     "count_parameters",
     "get_preset",
     "make_cost_volume",

@@ -21,12 +21,13 @@ from gijax.nn.unet3d import UNet3D
 def make_cost_volume(config: ModelConfig, rngs: nnx.Rngs) -> nnx.Module:
     """The config's cost-volume builder, ``feature_channels`` -> ``unet_in`` channels."""
     if config.cost_volume == "concat":
-        return ConcatCostVolume(config.num_cameras, config.feature_channels, config.unet_in, rngs)
-    return VarianceCostVolume(config.feature_channels, config.unet_in, rngs)
+        return ConcatCostVolume(config.num_cameras, config.feature_channels, config.unet_in, rngs,
+                                conv3d=config.conv3d)
+    return VarianceCostVolume(config.feature_channels, config.unet_in, rngs, conv3d=config.conv3d)
 
 
 def make_unet(config: ModelConfig, rngs: nnx.Rngs) -> UNet3D:
-    return UNet3D(config.unet_in, config.unet_base, rngs)
+    return UNet3D(config.unet_in, config.unet_base, rngs, conv3d=config.conv3d)
 
 
 class NetworkParts(nnx.Module):
@@ -47,7 +48,7 @@ def count_parameters(config: ModelConfig | str) -> dict[str, int]:
     structural = dataclasses.replace(
         config, name="", candidates="ev", loss="volume", mask_augmentation=False,
         num_candidates=8, surrogate_hw=(32, 32), cost_hw=(8, 8), output_hw=(16, 16),
-        image_scale=1.0, d_min=0.5, d_max=100.0,
+        image_scale=1.0, d_min=0.5, d_max=100.0, conv3d="auto",
     )
     return dict(_count(structural))
 

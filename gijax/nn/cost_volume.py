@@ -3,7 +3,8 @@
 Input: ``features`` (B, Ncam, D, h, w, C), each camera's feature map sampled at the projection
 of every (candidate, cell) point, and ``valid`` (B, Ncam, D, h, w) (bool or float, > 0 = the
 camera sees that point: inside its hemisphere, sampled image mask set). Output
-(B, D, h, w, out_channels), each builder ending with a 3x3x3 conv + BN + LeakyReLU.
+(B, D, h, w, out_channels), each builder ending with a 3x3x3 conv + BN + LeakyReLU that lowers
+as ``conv3d`` (see :class:`gijax.nn.layers.Conv3D`).
 
 * :class:`ConcatCostVolume`: stacks the cameras' channels (camera-major: camera 0's C channels
   first), Ncam x C channels; the camera count is fixed at construction and, as in the release,
@@ -56,10 +57,11 @@ def masked_variance(features: Array, valid: Array) -> Array:
 class ConcatCostVolume(nnx.Module):
     """Concatenate the cameras' features -> 3x3x3 conv (Ncam C -> out) + BN + LeakyReLU."""
 
-    def __init__(self, num_cameras: int, channels: int, out_channels: int, rngs: nnx.Rngs):
+    def __init__(self, num_cameras: int, channels: int, out_channels: int, rngs: nnx.Rngs,
+                 conv3d: str = "auto"):
         self.num_cameras = num_cameras
         self.channels = channels
-        self.fuse = ConvBN(num_cameras * channels, out_channels, 3, 3, rngs)
+        self.fuse = ConvBN(num_cameras * channels, out_channels, 3, 3, rngs, conv3d=conv3d)
 
     def __call__(self, features: Array, valid: Array) -> Array:
         _check(features, valid, "ConcatCostVolume")
@@ -77,9 +79,9 @@ class ConcatCostVolume(nnx.Module):
 class VarianceCostVolume(nnx.Module):
     """Masked variance over the valid cameras -> 3x3x3 conv (C -> out) + BN + LeakyReLU."""
 
-    def __init__(self, channels: int, out_channels: int, rngs: nnx.Rngs):
+    def __init__(self, channels: int, out_channels: int, rngs: nnx.Rngs, conv3d: str = "auto"):
         self.channels = channels
-        self.fuse = ConvBN(channels, out_channels, 3, 3, rngs)
+        self.fuse = ConvBN(channels, out_channels, 3, 3, rngs, conv3d=conv3d)
 
     def __call__(self, features: Array, valid: Array) -> Array:
         _check(features, valid, "VarianceCostVolume")

@@ -6,11 +6,18 @@ conv on an even axis of length n then gives n / 2 outputs whose windows are cent
 0, 2, 4, ... (XLA's 'SAME' would pad only at the end and centre them on 1, 3, 5, ...).
 BatchNorm follows the module's train/eval mode (``model.train()`` / ``model.eval()``); its
 momentum 0.9 is the PyTorch default 0.1 written the flax way.
+
+Every conv and linear kernel is drawn by :func:`kernel_init`, the only random initialiser in
+the network: a module built eagerly or under ``jax.jit`` holds the same weights for the same
+``nnx.Rngs`` seed.
+
+How a 3-D conv lowers to XLA is a constructor argument (``lowering`` of :class:`Conv3D`,
+``conv3d`` of the modules that hold one), hence part of the module graph that ``nnx.jit`` and
+``nnx.split`` see: a function traced for one lowering is never reused for another.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
 
 import jax
@@ -24,32 +31,44 @@ LEAKY_SLOPE = 0.01
 BN_MOMENTUM = 0.9
 BN_EPSILON = 1e-5
 
+# Standard deviation of a unit normal truncated to [-2, 2]: kernels are divided by it so that
+# their variance stays 1 / fan_in after the truncation.
+TRUNCATED_NORMAL_STD = 0.87962566103423978
 
+# Normals are drawn in chunks of this many values, so that every kernel shape uses the same
+# random-number program.
 _INIT_CHUNK = 1 << 16
 
 
 def kernel_init(key: Array, shape, dtype=jnp.float32) -> Array:
-    """LeCun-normal weights (truncated at 2 sigma, std 1 / sqrt(fan_in) after truncation),
-    fan_in = product of all but the last axis: the flax default for Conv and Linear.
+    """LeCun-normal weights: a normal truncated at 2 sigma, rescaled to std 1 / sqrt(fan_in),
+    fan_in = product of all but the last axis (flax's default for Conv and Linear).
 
-    The normals are drawn in fixed-size chunks (one key per chunk) and cut to size, so eager
-    initialisation compiles the random-number program once instead of once per kernel shape
-    (about 0.3-1.5 s of XLA compile time each on a CPU); when the draw is concrete the cut and
-    scale run in numpy. Traced (jit / eval_shape) and eager initialisation give equal values.
+    Chunk ``i`` of ``2**16`` normals is drawn from ``fold_in(key, i)`` and the chunks are cut to
+    ``shape``. Why: eagerly, XLA compiles one program per distinct random-array shape (0.3-1.5 s
+    of CPU compile time each), which made building a paper-size network take about a minute;
+    with a fixed chunk shape, and a key per chunk that needs no shape-dependent split, the two
+    programs (``fold_in`` and the draw) compile once per process. Concrete draws are cut and
+    scaled in numpy for the same reason. Traced (jit, ``nnx.eval_shape``) the chunks are one
+    vmapped draw of the same numbers.
     """
     n = math.prod(shape)
-    std = 1.0 / math.sqrt(math.prod(shape[:-1])) / 0.87962566103423978
-    m = -(-n // _INIT_CHUNK)
-    keys = jax.random.split(key, m)
+    std = 1.0 / math.sqrt(math.prod(shape[:-1])) / TRUNCATED_NORMAL_STD
+    chunks = -(-n // _INIT_CHUNK)
 
-    def draw(k):
-        return jax.random.truncated_normal(k, -2.0, 2.0, (_INIT_CHUNK,), dtype)
+    def draw(i):
+        return jax.random.truncated_normal(jax.random.fold_in(key, i), -2.0, 2.0,
+                                           (_INIT_CHUNK,), dtype)
 
-    if isinstance(keys, jax.core.Tracer):
-        # One vmapped draw traces faster than m separate ones and gives the same numbers.
-        z = jax.vmap(draw)(keys).reshape(-1)
+    # Ask the first draw, not the key, whether this is traced: a concrete key closed over by a
+    # traced function still gives traced draws.
+    draws = [draw(np.uint32(0))]
+    if isinstance(draws[0], jax.core.Tracer):
+        z = jax.vmap(draw)(jnp.arange(chunks, dtype=jnp.uint32)).reshape(-1)
         return z[:n].reshape(shape) * jnp.asarray(std, dtype)
-    z = np.concatenate([np.asarray(draw(keys[i])) for i in range(m)])
+    # All chunks are dispatched before the first is read back, so the draws overlap the copies.
+    draws += [draw(np.uint32(i)) for i in range(1, chunks)]
+    z = np.concatenate([np.asarray(d) for d in draws])
     return jnp.asarray((z[:n].reshape(shape) * std).astype(dtype))
 
 
@@ -62,37 +81,14 @@ def batch_norm(channels: int, rngs: nnx.Rngs) -> nnx.BatchNorm:
     return nnx.BatchNorm(channels, momentum=BN_MOMENTUM, epsilon=BN_EPSILON, rngs=rngs)
 
 
-_CONV3D_MODES = ("auto", "native", "split")
-_conv3d_mode = "auto"
+CONV3D_LOWERINGS = ("auto", "split", "native")
 
 
-@contextlib.contextmanager
-def conv3d_mode(mode: str):
-    """Choose how :class:`Conv3D` lowers while tracing inside this context.
-
-    * ``'native'``: one 3-D convolution (cuDNN on GPUs; a single ONNX Conv node for export).
-    * ``'split'``: 2-D convolutions over the depth-shifted slices (depth folded into the
-      batch), summed per depth tap or stacked on the channel axis by plane size. Same numbers
-      and parameters; on CPU, XLA has no fast 3-D convolution and this is 4-10x quicker forward
-      and backward.
-    * ``'auto'`` (default): 'split' on the CPU backend, 'native' elsewhere.
-
-    The choice is made at trace time, so it must be in force when a function is first jitted.
-    """
-    global _conv3d_mode
-    if mode not in _CONV3D_MODES:
-        raise ValueError(f"conv3d mode must be one of {_CONV3D_MODES}, got {mode!r}")
-    previous, _conv3d_mode = _conv3d_mode, mode
-    try:
-        yield
-    finally:
-        _conv3d_mode = previous
-
-
-def _use_split() -> bool:
-    if _conv3d_mode == "auto":
+def _use_split(lowering: str) -> bool:
+    # 'auto' is resolved while tracing, by the backend the program is compiled for.
+    if lowering == "auto":
         return jax.default_backend() == "cpu"
-    return _conv3d_mode == "split"
+    return lowering == "split"
 
 
 # Plane size (h * w * C_in elements) from which the split 3-D conv sums one 2-D conv per depth
@@ -104,12 +100,21 @@ class Conv3D(nnx.Conv):
     """3-D conv, channels-last (B, D, H, W, C), cubic kernel, symmetric padding ``kernel // 2``.
 
     An ``nnx.Conv`` (same parameters ``kernel`` (k, k, k, C_in, C_out) and optional ``bias``)
-    whose lowering follows :func:`conv3d_mode`; the native path is ``nnx.Conv`` itself, which
-    ONNX exporters map to one Conv node.
+    with a choice of lowering, ``lowering``, that changes neither the parameters nor the numbers:
+
+    * ``'native'``: ``nnx.Conv`` itself, one 3-D convolution (cuDNN on GPUs; one ONNX Conv node
+      per layer, which is what the exporter needs).
+    * ``'split'``: 2-D convolutions over depth-shifted slices with the depth folded into the
+      batch. XLA's CPU backend has no fast 3-D convolution; this is 4-10x quicker there,
+      forward and backward.
+    * ``'auto'``: 'split' when compiling for the CPU backend, 'native' otherwise.
     """
 
     def __init__(self, in_ch: int, out_ch: int, kernel: int, stride: int, rngs: nnx.Rngs,
-                 use_bias: bool = False):
+                 use_bias: bool = False, lowering: str = "auto"):
+        if lowering not in CONV3D_LOWERINGS:
+            raise ValueError(f"conv3d lowering must be one of {CONV3D_LOWERINGS}; "
+                             f"found {lowering!r}")
         pad = kernel // 2
         super().__init__(
             in_ch, out_ch, (kernel,) * 3, strides=(stride,) * 3, padding=((pad, pad),) * 3,
@@ -117,9 +122,10 @@ class Conv3D(nnx.Conv):
         )
         self.size = kernel
         self.stride = stride
+        self.lowering = lowering
 
     def __call__(self, x: Array) -> Array:
-        if not _use_split():
+        if not _use_split(self.lowering):
             return nnx.Conv.__call__(self, x)
         w = self.kernel[...].astype(x.dtype)
         k, s, pad = self.size, self.stride, self.size // 2
@@ -152,10 +158,11 @@ class Conv3D(nnx.Conv):
 
 
 def conv(in_ch: int, out_ch: int, kernel: int, ndim: int, stride: int, rngs: nnx.Rngs,
-         use_bias: bool = False) -> nnx.Module:
-    """A ``ndim``-D conv, cubic kernel ``kernel``, symmetric padding ``kernel // 2``."""
+         use_bias: bool = False, conv3d: str = "auto") -> nnx.Module:
+    """A ``ndim``-D conv, cubic kernel ``kernel``, symmetric padding ``kernel // 2``; a 3-D one
+    lowers as ``conv3d`` (see :class:`Conv3D`)."""
     if ndim == 3:
-        return Conv3D(in_ch, out_ch, kernel, stride, rngs, use_bias)
+        return Conv3D(in_ch, out_ch, kernel, stride, rngs, use_bias, lowering=conv3d)
     pad = kernel // 2
     return nnx.Conv(
         in_ch, out_ch, (kernel,) * ndim, strides=(stride,) * ndim,
@@ -167,8 +174,8 @@ class ConvBN(nnx.Module):
     """conv (no bias) -> BatchNorm -> optional LeakyReLU; channels-last, 2-D or 3-D."""
 
     def __init__(self, in_ch: int, out_ch: int, kernel: int, ndim: int, rngs: nnx.Rngs,
-                 stride: int = 1, activate: bool = True):
-        self.conv = conv(in_ch, out_ch, kernel, ndim, stride, rngs)
+                 stride: int = 1, activate: bool = True, conv3d: str = "auto"):
+        self.conv = conv(in_ch, out_ch, kernel, ndim, stride, rngs, conv3d=conv3d)
         self.bn = batch_norm(out_ch, rngs)
         self.activate = activate
 
@@ -180,9 +187,9 @@ class ConvBN(nnx.Module):
 class ResidualBlock(nnx.Module):
     """x + BN(conv3(LeakyReLU(BN(conv3(x))))) followed by LeakyReLU; shape-preserving."""
 
-    def __init__(self, channels: int, ndim: int, rngs: nnx.Rngs):
-        self.first = ConvBN(channels, channels, 3, ndim, rngs)
-        self.second = ConvBN(channels, channels, 3, ndim, rngs, activate=False)
+    def __init__(self, channels: int, ndim: int, rngs: nnx.Rngs, conv3d: str = "auto"):
+        self.first = ConvBN(channels, channels, 3, ndim, rngs, conv3d=conv3d)
+        self.second = ConvBN(channels, channels, 3, ndim, rngs, activate=False, conv3d=conv3d)
 
     def __call__(self, x: Array) -> Array:
         return leaky_relu(x + self.second(self.first(x)))

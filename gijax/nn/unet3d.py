@@ -40,10 +40,11 @@ RESIDUAL_BLOCKS_PER_STAGE = 3
 class DownStage(nnx.Module):
     """Stride-2 3x3x3 conv (halves D, h, w) + BN + LeakyReLU, then residual 3-D blocks."""
 
-    def __init__(self, in_ch: int, out_ch: int, rngs: nnx.Rngs):
-        self.down = ConvBN(in_ch, out_ch, 3, 3, rngs, stride=2)
+    def __init__(self, in_ch: int, out_ch: int, rngs: nnx.Rngs, conv3d: str = "auto"):
+        self.down = ConvBN(in_ch, out_ch, 3, 3, rngs, stride=2, conv3d=conv3d)
         self.blocks = nnx.List(
-            [ResidualBlock(out_ch, 3, rngs) for _ in range(RESIDUAL_BLOCKS_PER_STAGE)]
+            [ResidualBlock(out_ch, 3, rngs, conv3d=conv3d)
+             for _ in range(RESIDUAL_BLOCKS_PER_STAGE)]
         )
 
     def __call__(self, x: Array) -> Array:
@@ -56,8 +57,8 @@ class DownStage(nnx.Module):
 class UpStage(nnx.Module):
     """Trilinear x2 upsample, 3x3x3 conv + BN, add the skip (when given), LeakyReLU."""
 
-    def __init__(self, in_ch: int, out_ch: int, rngs: nnx.Rngs):
-        self.conv = ConvBN(in_ch, out_ch, 3, 3, rngs, activate=False)
+    def __init__(self, in_ch: int, out_ch: int, rngs: nnx.Rngs, conv3d: str = "auto"):
+        self.conv = ConvBN(in_ch, out_ch, 3, 3, rngs, activate=False, conv3d=conv3d)
 
     def __call__(self, x: Array, skip: Array | None = None) -> Array:
         y = self.conv(upsample2(x, (1, 2, 3)))
@@ -67,18 +68,19 @@ class UpStage(nnx.Module):
 class UNet3D(nnx.Module):
     """(B, D, h, w, in_channels) cost volume -> (B, D, h, w) logits; D, h, w divisible by 8.
 
-    Channels ``base``, ``2 base``, ``4 base`` on the three down stages.
+    Channels ``base``, ``2 base``, ``4 base`` on the three down stages; every 3-D conv lowers as
+    ``conv3d`` (see :class:`gijax.nn.layers.Conv3D`).
     """
 
-    def __init__(self, in_channels: int, base: int, rngs: nnx.Rngs):
+    def __init__(self, in_channels: int, base: int, rngs: nnx.Rngs, conv3d: str = "auto"):
         self.in_channels = in_channels
-        self.down1 = DownStage(in_channels, base, rngs)
-        self.down2 = DownStage(base, 2 * base, rngs)
-        self.down3 = DownStage(2 * base, 4 * base, rngs)
-        self.up3 = UpStage(4 * base, 2 * base, rngs)
-        self.up2 = UpStage(2 * base, base, rngs)
-        self.up1 = UpStage(base, in_channels, rngs)
-        self.head = conv(in_channels, 1, 3, 3, 1, rngs, use_bias=True)
+        self.down1 = DownStage(in_channels, base, rngs, conv3d)
+        self.down2 = DownStage(base, 2 * base, rngs, conv3d)
+        self.down3 = DownStage(2 * base, 4 * base, rngs, conv3d)
+        self.up3 = UpStage(4 * base, 2 * base, rngs, conv3d)
+        self.up2 = UpStage(2 * base, base, rngs, conv3d)
+        self.up1 = UpStage(base, in_channels, rngs, conv3d)
+        self.head = conv(in_channels, 1, 3, 3, 1, rngs, use_bias=True, conv3d=conv3d)
 
     def __call__(self, volume: Array) -> Array:
         if volume.ndim != 5 or volume.shape[-1] != self.in_channels:

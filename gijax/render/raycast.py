@@ -6,9 +6,11 @@ Quadratics are written in their cancellation-free forms (the discriminant of a s
 or capsule is computed from the perpendicular miss distance rather than as ``b^2 - ac``), which
 keeps thin wires of a centimetre radius exact at 100 m in float32.
 
-All functions broadcast over a leading ray axis (M,) and are jit/vmap-able. A miss is ``FAR``
-(1e6 m, the dataset's sky convention). Normals are unit vectors; their orientation is not
-guaranteed to face the ray (shading flips them).
+All functions broadcast over a leading ray axis (M,), are jit/vmap-able and have finite
+gradients (the guarded operations of :mod:`gijax.numerics`). A miss is ``FAR`` (1e6 m, the
+dataset's sky convention). Normals are unit vectors; their orientation is not guaranteed to face
+the ray (shading flips them). Vertical cylinders are the rig body's intersection,
+:func:`gijax.geometry.occluder.cylinder_intersection`.
 """
 
 from __future__ import annotations
@@ -16,27 +18,20 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from gijax.render.scene import (FAR, NUM_BOXES, NUM_CAPSULES, NUM_CYLINDERS, NUM_PLANES,
-                                NUM_SPHERES, OFFSET_BOXES, OFFSET_CAPSULES, OFFSET_CYLINDERS,
-                                OFFSET_PLANES, OFFSET_ROOM, OFFSET_SPHERES, SKY_ID, Scene)
+from gijax.geometry.occluder import FAR, Cylinder, cylinder_intersection
+from gijax.numerics import away_from_zero, safe_div, safe_norm, safe_sqrt, unit
+from gijax.render.scene import (NUM_BOXES, NUM_CAPSULES, NUM_CYLINDERS, NUM_PLANES, NUM_SPHERES,
+                                OFFSET_BOXES, OFFSET_CAPSULES, OFFSET_CYLINDERS, OFFSET_PLANES,
+                                OFFSET_ROOM, OFFSET_SPHERES, SKY_ID, Scene)
 
 Array = jax.Array
 # Hits closer than this (metres) are ignored, so a ray leaving a surface does not re-hit it.
 T_MIN = 1e-4
 
 
-def _safe(x: Array, eps: float = 1e-20) -> Array:
-    """x with exact zeros (and tiny values) replaced by a tiny value of the same sign."""
-    return jnp.where(jnp.abs(x) > eps, x, jnp.where(x >= 0, eps, -eps))
-
-
 def _first_positive(t0: Array, t1: Array) -> Array:
     """The smaller root above T_MIN, else the larger one above T_MIN, else FAR."""
     return jnp.where(t0 > T_MIN, t0, jnp.where(t1 > T_MIN, t1, FAR))
-
-
-def _unit(v: Array) -> Array:
-    return v / jnp.sqrt(jnp.maximum(jnp.sum(v * v, -1, keepdims=True), 1e-30))
 
 
 def hit_plane(height: Array, extent: Array, o: Array, d: Array) -> tuple[Array, Array]:
@@ -45,9 +40,9 @@ def hit_plane(height: Array, extent: Array, o: Array, d: Array) -> tuple[Array, 
     Returns (t (M,), normal (M, 3)). The range limit is measured horizontally from the ray origin
     so that a ground plane ends at a far horizon instead of reaching grazing distances.
     """
-    dz = _safe(d[:, 2])
+    dz = away_from_zero(d[:, 2])
     t = (height - o[:, 2]) / dz
-    horiz = t * jnp.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2)
+    horiz = t * safe_norm(d[:, :2])
     ok = (t > T_MIN) & (horiz <= extent) & (jnp.abs(d[:, 2]) > 1e-12)
     n = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], d.dtype), d.shape)
     return jnp.where(ok, t, FAR), n
@@ -71,7 +66,7 @@ def _from_box_frame(yaw: Array, n: Array) -> Array:
 
 def _slabs(half: Array, o: Array, d: Array) -> tuple[Array, Array, Array, Array]:
     """Per-axis entry/exit distances of the slab test: (t_near (M,3), t_far (M,3), tmin, tmax)."""
-    inv = 1.0 / _safe(d)
+    inv = 1.0 / away_from_zero(d)
     t1 = (-half - o) * inv
     t2 = (half - o) * inv
     t_near = jnp.minimum(t1, t2)
@@ -105,45 +100,24 @@ def hit_sphere(centre: Array, radius: Array, o: Array, d: Array) -> tuple[Array,
     b = jnp.sum(oc * d, -1)
     perp = oc - b[:, None] * d
     disc = radius**2 - jnp.sum(perp * perp, -1)
-    sq = jnp.sqrt(jnp.maximum(disc, 0.0))
+    sq = safe_sqrt(disc)
     t = _first_positive(-b - sq, -b + sq)
     t = jnp.where(disc >= 0.0, t, FAR)
-    n = _unit(oc + t[:, None] * d)
+    n = unit(oc + t[:, None] * d)
     return t, n
 
 
 def hit_cylinder(xy: Array, radius: Array, z0: Array, z1: Array, o: Array,
                  d: Array) -> tuple[Array, Array]:
-    """Vertical capped cylinder around the axis through ``xy`` (2,), z in [z0, z1], from outside."""
-    ox = o[:, 0] - xy[0]
-    oy = o[:, 1] - xy[1]
-    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
-    a = dx * dx + dy * dy
-    b = ox * dx + oy * dy
-    cross = ox * dy - oy * dx
-    disc = a * radius**2 - cross * cross
-    a_safe = jnp.maximum(a, 1e-30)
-    t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / a_safe
-    z_side = o[:, 2] + t_side * dz
-    side_ok = (disc >= 0.0) & (a > 1e-12) & (t_side > T_MIN) & (z_side >= z0) & (z_side <= z1)
-    t = jnp.where(side_ok, t_side, FAR)
-    n_side = jnp.stack([ox + t_side * dx, oy + t_side * dy, jnp.zeros_like(dx)], -1) / radius
-    n = n_side
-    dz_safe = _safe(dz)
-    for zc, sign in ((z0, -1.0), (z1, 1.0)):
-        tc = (zc - o[:, 2]) / dz_safe
-        px = ox + tc * dx
-        py = oy + tc * dy
-        cap_ok = (tc > T_MIN) & (px * px + py * py <= radius**2) & (tc < t)
-        t = jnp.where(cap_ok, tc, t)
-        n = jnp.where(cap_ok[:, None], jnp.array([0.0, 0.0, sign], d.dtype), n)
-    return t, n
+    """Vertical capped cylinder around the axis through ``xy`` (2,), z in [z0, z1]: the rig
+    body's intersection (side wall from outside, caps from either side) beyond ``T_MIN``."""
+    return cylinder_intersection(Cylinder(xy[0], xy[1], radius, z0, z1), o, d, T_MIN)
 
 
 def hit_capsule(a: Array, b: Array, radius: Array, o: Array, d: Array) -> tuple[Array, Array]:
     """Capsule: all points within ``radius`` of the segment a-b (wires, pipes, cords, beams)."""
     ba = b - a
-    length = jnp.sqrt(jnp.maximum(jnp.sum(ba * ba), 1e-30))
+    length = safe_norm(ba)
     u = ba / length
     oa = o - a
     du = d @ u
@@ -155,7 +129,7 @@ def hit_capsule(a: Array, b: Array, radius: Array, o: Array, d: Array) -> tuple[
     # |o_perp x d_perp| equals the triple product (oa x d) . u; no cancellation for thin wires.
     triple = jnp.sum(jnp.cross(oa, d) * u, -1)
     disc = aa * radius**2 - triple * triple
-    t_body = (-bb - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(aa, 1e-30)
+    t_body = safe_div(-bb - safe_sqrt(disc), aa)
     y = ou + t_body * du
     body_ok = (disc >= 0.0) & (aa > 1e-12) & (t_body > T_MIN) & (y >= 0.0) & (y <= length)
     t = jnp.where(body_ok, t_body, FAR)
@@ -164,7 +138,7 @@ def hit_capsule(a: Array, b: Array, radius: Array, o: Array, d: Array) -> tuple[
         t = jnp.minimum(t, te)
     p = oa + t[:, None] * d
     along = jnp.clip(p @ u, 0.0, length)
-    n = _unit(p - along[:, None] * u)
+    n = unit(p - along[:, None] * u)
     return t, n
 
 

@@ -1,9 +1,10 @@
 """Typed training configuration, saved as JSON in every run folder.
 
 A run folder holds ``config.json`` (this file's :class:`TrainConfig`, the resolved
-:class:`gijax.nn.presets.ModelConfig` and the training candidates), ``checkpoints/`` (periodic,
-keep-N), ``best/`` (the best by a validation metric), ``metrics.jsonl``, TensorBoard event files
-under ``tb/`` and sample predictions under ``samples/``.
+:class:`gijax.nn.presets.ModelConfig` and the training candidates; the document's format is
+:mod:`gijax.store.configs`), ``checkpoints/`` (periodic, keep-N), ``best/`` (the best by a
+validation metric), ``metrics.jsonl``, TensorBoard event files under ``tb/`` and sample
+predictions under ``samples/``.
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ import os
 from pathlib import Path
 from typing import Any, Optional
 
+from gijax.io.paths import write_text_atomic
 from gijax.nn.presets import ModelConfig, get_preset
+from gijax.store.configs import CONFIG_FILE, read_run_config, run_config_document
 
-CONFIG_FILE = "config.json"
 SCHEDULES = ("constant", "cosine", "warmup_cosine", "step")
 
 
@@ -118,54 +120,22 @@ class TrainConfig:
         return cls(**d)
 
 
-def model_config_to_dict(cfg: ModelConfig) -> dict:
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(cfg).items()}
-
-
-def model_config_from_dict(d: dict) -> ModelConfig:
-    return ModelConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
-
-
-def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to a temporary name in the same folder, then rename over ``path``; the
-    temporary file is removed when that fails (e.g. ``path`` is a folder)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        with open(tmp, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
 def write_json_atomic(path: str | os.PathLike, obj: Any) -> None:
-    """Write JSON to a temporary name in the same folder, then rename over ``path``."""
+    """Write ``obj`` as indented JSON, atomically (:mod:`gijax.io.paths`)."""
     write_text_atomic(path, json.dumps(obj, indent=2))
 
 
 def save_run_config(run_dir: str | os.PathLike, config: TrainConfig, candidates, rig_name: str = "") -> None:
     """Write ``RUN/config.json``: training config, resolved model config and candidates (m)."""
-    doc = {
-        "train": config.to_dict(),
-        "model": model_config_to_dict(config.model_config()),
-        "candidates": [float(c) for c in candidates],
-        "rig": rig_name,
-    }
+    doc = run_config_document(config.to_dict(), config.model_config(), candidates, rig_name)
     write_json_atomic(Path(run_dir) / CONFIG_FILE, doc)
 
 
 def load_run_config(run_dir: str | os.PathLike) -> tuple[TrainConfig, ModelConfig, list]:
     """Read ``RUN/config.json`` -> (TrainConfig, ModelConfig, candidates in metres)."""
-    path = Path(run_dir) / CONFIG_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no run configuration (is {run_dir} a training run folder?)")
+    run = read_run_config(run_dir)
     try:
-        doc = json.loads(path.read_text())
-        return (TrainConfig.from_dict(doc["train"]), model_config_from_dict(doc["model"]),
-                list(doc["candidates"]))
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: unreadable run configuration ({exc})") from exc
+        return TrainConfig.from_dict(run.train), run.model, run.candidates
+    except TypeError as exc:
+        raise ValueError(f"{Path(run_dir) / CONFIG_FILE}: unreadable run configuration "
+                         f"({exc})") from exc

@@ -104,6 +104,7 @@ def import_release_weights(src: str | os.PathLike, preset: str, out: str | os.Pa
     """
     from gijax.model import create_model
     from gijax.nn.release_weights import load_state_dict
+    from gijax.store.configs import CONFIG_FILE
     from gijax.train.bundle import save_bundle
     from gijax.train.config import TrainConfig, save_run_config
 
@@ -128,4 +129,4 @@ def import_release_weights(src: str | os.PathLike, preset: str, out: str | os.Pa
     }
     with tempfile.TemporaryDirectory() as tmp:
         save_run_config(tmp, train_cfg, candidates, rig_name="")
-        return save_bundle(model, Path(tmp) / "config.json", out, provenance)
+        return save_bundle(model, Path(tmp) / CONFIG_FILE, out, provenance)

@@ -9,12 +9,18 @@ Labels are clamped to the candidate range in inverse distance (a label farther t
 candidate counts as the last candidate, one nearer than the first as the first), because the
 network can only express inverse distances between those of its candidates. A pixel counts
 when ``valid`` is set and its label is a finite positive number.
+
+Computation is in float32, or float64 when the inputs are (:func:`gijax.numerics.float_dtype`).
+Every function is traceable (jit, vmap, grad in the predictions and the candidates; a loss
+``kind`` is static).
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+
+from gijax.numerics import float_dtype
 
 Array = jax.Array
 
@@ -39,9 +45,10 @@ def clamped_inverse(distance: Array, candidates: Array) -> Array:
     Unusable labels (non-finite or non-positive) map to the far end so the result stays finite;
     callers mask them out with :func:`label_mask`.
     """
-    cand = jnp.asarray(candidates, jnp.float32)
+    dt = float_dtype(distance, candidates)
+    cand = jnp.asarray(candidates, dt)
     lo, hi = 1.0 / cand[-1], 1.0 / cand[0]
-    d = jnp.where(jnp.isfinite(distance) & (distance > 0), distance, cand[-1]).astype(jnp.float32)
+    d = jnp.where(jnp.isfinite(distance) & (distance > 0), distance, cand[-1]).astype(dt)
     return jnp.clip(1.0 / d, lo, hi)
 
 
@@ -52,7 +59,7 @@ def two_hot_target(distance: Array, candidates: Array) -> Array:
     neighbouring candidates ``a, b = a + 1``, the target puts ``(x - q_b) / (q_a - q_b)`` on
     ``a`` and the rest on ``b``; every target sums to 1 and reproduces ``x`` as ``sum_i t_i q_i``.
     """
-    cand = jnp.asarray(candidates, jnp.float32)
+    cand = jnp.asarray(candidates, float_dtype(distance, candidates))
     n = cand.shape[0]
     inv_c = 1.0 / cand                                   # descending with ascending distance
     x = clamped_inverse(distance, cand)[:, None]         # (B, 1, H, W)
@@ -76,8 +83,8 @@ def volume_loss(prob: Array, distance: Array, valid: Array, candidates: Array) -
     all pixels because its labels are always valid; on such data the two agree). Returns 0 when
     no pixel is usable.
     """
-    p = prob.astype(jnp.float32)
     t = two_hot_target(distance, candidates)
+    p = prob.astype(float_dtype(prob, t))
     m = label_mask(distance, valid)[:, None]                       # (B, 1, H, W)
     bce = -(t * jnp.log(jnp.maximum(p, _PROB_FLOOR))
             + (1.0 - t) * jnp.log(jnp.maximum(1.0 - p, _PROB_FLOOR)))
@@ -101,7 +108,7 @@ def smooth_l1_loss(inv_pred: Array, distance: Array, valid: Array, candidates: A
     """
     target = clamped_inverse(distance, candidates)
     m = label_mask(distance, valid)
-    err = smooth_l1(scale * (inv_pred.astype(jnp.float32) - target), beta)
+    err = smooth_l1(scale * (inv_pred.astype(float_dtype(inv_pred, target)) - target), beta)
     return jnp.sum(err * m) / jnp.maximum(jnp.sum(m), 1.0)
 
 

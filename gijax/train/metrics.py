@@ -45,8 +45,20 @@ averaged over samples (whatever the batch size here).
   ``L = 1`` by default, averaged over the whole image including its border; the mean of the
   per-sample values. Unusable label pixels take the predicted value.
 
+Pixels a method leaves without an estimate (RTSS where no camera pair matched; ``pred_valid``
+False, or a non-finite prediction) are lost coverage in both sets, never NaN: they are left out
+of MAE, RMSE and the bad-pixel rates, the share of scored label pixels that do have an
+estimate is reported as ``coverage``, and SSIM, which needs a whole image, sees them at the far
+end of the candidate range (``1 / candidates[-1]``, "nothing found nearer"), so a method that
+leaves holes where something is near loses SSIM there.
+
 The thresholds of the bad-pixel rates (Meuleman et al. 2021) apply to absolute inverse-depth
 error, taken here in 1/m (0.1 and 0.4 1/m are 5 % and 20 % of the 0.01..2 range).
+
+Computation is in float32, or float64 when the inputs are (:func:`gijax.numerics.float_dtype`).
+The per-sample functions are traceable (jit, vmap, grad in the prediction); the edges that
+return Python numbers (:func:`summarize`, :func:`evaluate_batch`), validate a name
+(:func:`check_metric_set`) or build a NumPy constant (:func:`gaussian_window_1d`) are not.
 """
 
 from __future__ import annotations
@@ -57,6 +69,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gijax.numerics import float_dtype, sqrt_or_zero
 from gijax.train.losses import clamped_inverse, label_mask
 
 Array = jax.Array
@@ -67,8 +80,8 @@ BAD_THRESHOLDS = (0.1, 0.4)
 METRIC_SETS = ("paper", "gijax")
 # Per-sample values each set's batch_sums returns (summarize checks them).
 SUM_KEYS = {
-    "paper": ("count", "mae", "rmse", "ssim") + tuple(f"bad_{t}" for t in BAD_THRESHOLDS),
-    "gijax": ("count", "abs", "sq", "ssim") + tuple(f"bad_{t}" for t in BAD_THRESHOLDS),
+    "paper": ("count", "scored", "mae", "rmse", "ssim") + tuple(f"bad_{t}" for t in BAD_THRESHOLDS),
+    "gijax": ("count", "scored", "abs", "sq", "ssim") + tuple(f"bad_{t}" for t in BAD_THRESHOLDS),
 }
 
 
@@ -91,7 +104,7 @@ def _blur(x: Array, taps: np.ndarray, padding: str = "zero") -> Array:
     ``padding='zero'``: 'same' convolution with zeros outside. ``'reflect'``: the image is
     mirrored about its edge pixels (numpy / torch 'reflect') before a 'valid' convolution.
     """
-    k = jnp.asarray(taps)
+    k = jnp.asarray(taps, x.dtype)
     n = k.shape[0]
     pad = n // 2
     if padding == "reflect":
@@ -111,8 +124,9 @@ def ssim_map(x: Array, y: Array, data_range: float = 1.0, window: int = SSIM_WIN
              sigma: float = SSIM_SIGMA) -> Array:
     """(B, H, W) SSIM map of gijax's definition: zero padding, fixed data range (module doc)."""
     taps = gaussian_window_1d(window, sigma)
-    x = x.astype(jnp.float32)
-    y = y.astype(jnp.float32)
+    dt = float_dtype(x, y)
+    x = x.astype(dt)
+    y = y.astype(dt)
     c1 = (0.01 * data_range) ** 2
     c2 = (0.03 * data_range) ** 2
     mx, my = _blur(x, taps), _blur(y, taps)
@@ -137,8 +151,9 @@ def paper_ssim(x: Array, y: Array) -> Array:
         raise ValueError(f"SSIM needs images larger than {2 * pad} x {2 * pad} (its window "
                          f"border is cropped); found {x.shape[1:]}")
     taps = gaussian_window_1d(SSIM_WINDOW, SSIM_SIGMA)
-    x = x.astype(jnp.float32)
-    y = y.astype(jnp.float32)
+    dt = float_dtype(x, y)
+    x = x.astype(dt)
+    y = y.astype(dt)
     ptp = lambda a: jnp.max(a, axis=(1, 2)) - jnp.min(a, axis=(1, 2))  # noqa: E731
     data_range = jnp.maximum(ptp(x), ptp(y))[:, None, None]
     c1 = (0.01 * data_range) ** 2
@@ -153,42 +168,56 @@ def paper_ssim(x: Array, y: Array) -> Array:
     return jnp.mean(s[:, pad:-pad, pad:-pad], axis=(1, 2))
 
 
+def _fill_unmatched(inv_pred: Array, pred_valid, candidates: Array) -> tuple[Array, Array]:
+    """The prediction with pixels that have no estimate set to the far end of the candidate
+    range, and the (B, H, W) bool mask of pixels that have one (``pred_valid`` and finite)."""
+    matched = jnp.isfinite(inv_pred)
+    if pred_valid is not None:
+        matched = matched & jnp.asarray(pred_valid, bool)
+    far = 1.0 / jnp.asarray(candidates[-1], inv_pred.dtype)
+    return jnp.where(matched, inv_pred, far), matched
+
+
 def inverse_errors(inv_pred: Array, distance: Array, valid: Array, candidates: Array):
     """Per-pixel ``inv_pred - inv_gt`` (B, H, W), usable-pixel mask (B, H, W), clamped target."""
     target = clamped_inverse(distance, candidates)
     m = label_mask(distance, valid)
-    return inv_pred.astype(jnp.float32) - target, m, target
+    return inv_pred.astype(float_dtype(inv_pred, target)) - target, m, target
 
 
 def paper_label_mask(distance: Array, valid: Array, candidates: Array) -> Array:
     """(B, H, W) float32: 1 where the label is usable and inside the candidate range
     ``candidates[0] <= d <= candidates[-1]`` (the paper's pixel set for MAE and RMSE)."""
-    cand = jnp.asarray(candidates, jnp.float32)
-    d = distance.astype(jnp.float32)
+    dt = float_dtype(distance, candidates)
+    cand = jnp.asarray(candidates, dt)
+    d = distance.astype(dt)
     inside = (d >= cand[0]) & (d <= cand[-1])
     return label_mask(distance, valid) * inside.astype(jnp.float32)
 
 
 def paper_sample_metrics(inv_pred: Array, distance: Array, valid: Array,
-                         candidates: Array) -> dict:
+                         candidates: Array, pred_valid: Array | None = None) -> dict:
     """Per-sample values of the paper's definitions (each (B,); see the module docstring).
 
-    Keys: ``count`` (pixels in the MAE set), ``mae``, ``rmse``, ``bad_0.1``, ``bad_0.4`` (0
-    where ``count`` is 0) and ``ssim``.
+    ``pred_valid`` (B, H, W) marks the pixels the method estimated (None: every finite one).
+    Keys: ``scored`` (label pixels in the MAE set), ``count`` (those with an estimate),
+    ``mae``, ``rmse``, ``bad_0.1``, ``bad_0.4`` (0 where ``count`` is 0) and ``ssim``.
     """
-    inv_pred = inv_pred.astype(jnp.float32)
     target = clamped_inverse(distance, candidates)
-    m = paper_label_mask(distance, valid, candidates)
+    inv_pred, matched = _fill_unmatched(inv_pred.astype(float_dtype(inv_pred, target)),
+                                        pred_valid, candidates)
+    scored = paper_label_mask(distance, valid, candidates)
+    m = scored * matched.astype(scored.dtype)
     err = inv_pred - target              # inside the range the clamp leaves the label alone
     count = jnp.sum(m, axis=(1, 2))
     denom = jnp.maximum(count, 1.0)
     filled = jnp.where(label_mask(distance, valid) > 0, target, inv_pred)
     out = {
         "count": count,
+        "scored": jnp.sum(scored, axis=(1, 2)),
         "mae": jnp.sum(jnp.abs(err) * m, axis=(1, 2)) / denom,
-        # sqrt(0) has an infinite derivative; the inner where keeps gradients finite.
-        "rmse": jnp.where(count > 0, jnp.sqrt(jnp.where(
-            count > 0, jnp.sum(err * err * m, axis=(1, 2)) / denom, 1.0)), 0.0),
+        # sqrt(0) (no pixel, or a perfect prediction) has an infinite derivative.
+        "rmse": sqrt_or_zero(jnp.sum(err * err * m, axis=(1, 2)) / denom),
         "ssim": paper_ssim(inv_pred, filled),
     }
     for t in BAD_THRESHOLDS:
@@ -197,16 +226,21 @@ def paper_sample_metrics(inv_pred: Array, distance: Array, valid: Array,
 
 
 def gijax_batch_sums(inv_pred: Array, distance: Array, valid: Array, candidates: Array,
-                     data_range: float = 1.0) -> dict:
+                     data_range: float = 1.0, pred_valid: Array | None = None) -> dict:
     """Per-sample sums of gijax's definitions (each (B,)).
 
-    Keys: ``count`` (usable pixels), ``abs`` (sum |e|), ``sq`` (sum e^2), ``bad_0.1`` and
-    ``bad_0.4`` (counts), ``ssim`` (mean SSIM of each sample over its whole image).
+    ``pred_valid`` (B, H, W) marks the pixels the method estimated (None: every finite one).
+    Keys: ``scored`` (usable label pixels), ``count`` (those with an estimate), ``abs`` (sum
+    |e|), ``sq`` (sum e^2), ``bad_0.1`` and ``bad_0.4`` (counts), ``ssim`` (mean SSIM of each
+    sample over its whole image).
     """
-    err, m, target = inverse_errors(inv_pred, distance, valid, candidates)
-    filled = jnp.where(m > 0, target, inv_pred.astype(jnp.float32))
+    inv_pred, matched = _fill_unmatched(inv_pred, pred_valid, candidates)
+    err, scored, target = inverse_errors(inv_pred, distance, valid, candidates)
+    m = scored * matched.astype(scored.dtype)
+    filled = jnp.where(scored > 0, target, inv_pred.astype(err.dtype))
     out = {
         "count": jnp.sum(m, axis=(1, 2)),
+        "scored": jnp.sum(scored, axis=(1, 2)),
         "abs": jnp.sum(jnp.abs(err) * m, axis=(1, 2)),
         "sq": jnp.sum(err * err * m, axis=(1, 2)),
         "ssim": jnp.mean(ssim_map(inv_pred, filled, data_range), axis=(1, 2)),
@@ -218,17 +252,20 @@ def gijax_batch_sums(inv_pred: Array, distance: Array, valid: Array, candidates:
 
 @functools.partial(jax.jit, static_argnames=("data_range", "metric_set"))
 def batch_sums(inv_pred: Array, distance: Array, valid: Array, candidates: Array,
-               data_range: float = 1.0, metric_set: str = "gijax") -> dict:
+               data_range: float = 1.0, metric_set: str = "gijax",
+               pred_valid: Array | None = None) -> dict:
     """Per-sample values for accumulating metrics over many batches (each of shape (B,)).
 
     ``metric_set`` 'paper' -> :func:`paper_sample_metrics`, 'gijax' ->
-    :func:`gijax_batch_sums` (``data_range`` applies to gijax's SSIM only). Concatenate the
-    values of all batches and pass them to :func:`summarize` with the same ``metric_set``.
+    :func:`gijax_batch_sums` (``data_range`` applies to gijax's SSIM only). ``pred_valid``
+    (B, H, W) marks the pixels the method estimated (None: every finite one; the others are
+    lost coverage, see the module docstring). Concatenate the values of all batches and pass
+    them to :func:`summarize` with the same ``metric_set``.
     """
     check_metric_set(metric_set)
     if metric_set == "paper":
-        return paper_sample_metrics(inv_pred, distance, valid, candidates)
-    return gijax_batch_sums(inv_pred, distance, valid, candidates, data_range)
+        return paper_sample_metrics(inv_pred, distance, valid, candidates, pred_valid)
+    return gijax_batch_sums(inv_pred, distance, valid, candidates, data_range, pred_valid)
 
 
 def summarize(sums: dict, metric_set: str = "gijax") -> dict:
@@ -237,8 +274,9 @@ def summarize(sums: dict, metric_set: str = "gijax") -> dict:
     'paper': MAE, RMSE and bad-pixel rates are means of the per-sample values over the samples
     with at least one pixel in range (NaN if none has), SSIM the mean over all samples.
     'gijax': MAE, RMSE and bad-pixel rates pool all usable pixels of all samples; SSIM is the
-    mean of the per-sample SSIMs. Both return mae, rmse, ssim, bad_0.1, bad_0.4, pixels and
-    samples as Python numbers.
+    mean of the per-sample SSIMs. Both return mae, rmse, ssim, bad_0.1, bad_0.4, pixels
+    (scored pixels with an estimate), coverage (their share of all scored pixels) and samples
+    as Python numbers.
     """
     check_metric_set(metric_set)
     missing = [k for k in SUM_KEYS[metric_set] if k not in sums]
@@ -247,9 +285,12 @@ def summarize(sums: dict, metric_set: str = "gijax") -> dict:
                          f"{SUM_KEYS[metric_set]}; missing {missing} (were they computed with "
                          f"another metric_set?)")
     count = np.asarray(sums["count"], np.float64).reshape(-1)
+    scored = float(np.sum(np.asarray(sums["scored"], np.float64)))
     ssim = np.asarray(sums["ssim"], np.float64).reshape(-1)
     out = {"ssim": float(np.mean(ssim)) if ssim.size else float("nan"),
-           "pixels": int(np.sum(count)), "samples": int(count.size)}
+           "pixels": int(np.sum(count)), "samples": int(count.size),
+           # Share of the scored label pixels the method gave an estimate (1 with no label).
+           "coverage": float(np.sum(count)) / scored if scored > 0 else 1.0}
     if metric_set == "paper":
         has = count > 0
         mean = (lambda k: float(np.mean(np.asarray(sums[k], np.float64).reshape(-1)[has]))
@@ -267,9 +308,10 @@ def summarize(sums: dict, metric_set: str = "gijax") -> dict:
 
 
 def evaluate_batch(inv_pred: Array, distance: Array, valid: Array, candidates: Array,
-                   data_range: float = 1.0, metric_set: str = "gijax") -> dict:
+                   data_range: float = 1.0, metric_set: str = "gijax",
+                   pred_valid: Array | None = None) -> dict:
     """Metrics of one batch as Python numbers: mae, rmse, ssim, bad_0.1, bad_0.4, pixels,
-    samples (``metric_set`` 'paper' or 'gijax', see the module docstring)."""
+    coverage, samples (``metric_set`` 'paper' or 'gijax', see the module docstring)."""
     sums = batch_sums(inv_pred, distance, valid, jnp.asarray(candidates, jnp.float32),
-                      data_range=data_range, metric_set=metric_set)
+                      data_range=data_range, metric_set=metric_set, pred_valid=pred_valid)
     return summarize(jax.tree.map(np.asarray, sums), metric_set)

@@ -24,8 +24,9 @@ import numpy as np
 from gijax.geometry.rig import Rig
 from gijax.io.lock import FolderLock
 from gijax.train import step as S
+from gijax.store.configs import CONFIG_FILE
 from gijax.train.checkpoints import CheckpointStore
-from gijax.train.config import CONFIG_FILE, TrainConfig, load_run_config, save_run_config
+from gijax.train.config import TrainConfig, load_run_config, save_run_config
 from gijax.train.metrics import batch_sums, summarize
 
 METRICS_FILE = "metrics.jsonl"
@@ -68,10 +69,9 @@ def training_candidates(config: TrainConfig, rig: Optional[Rig]) -> np.ndarray:
     if cand.shape != (mc.num_candidates,):
         raise ValueError(f"preset {config.preset!r} needs {mc.num_candidates} candidates; "
                          f"found {cand.shape[0] if cand.ndim == 1 else cand.shape}")
-    if not np.all(np.diff(cand) > 0) or cand[0] <= 0:
-        raise ValueError(f"candidates must be positive and strictly ascending metres; found "
-                         f"{cand.tolist()}")
-    return cand
+    from gijax.candidates.validation import check_candidates
+
+    return check_candidates(cand)
 
 
 def model_rig(rig: Rig) -> Rig:
@@ -348,7 +348,7 @@ def drop_logs_after(run_dir, step: int) -> None:
     logs) again from the last checkpoint; dropping them first keeps one record per step, so
     readers need no de-duplication. A line or event cut short by the kill goes too.
     """
-    from gijax.train.config import write_text_atomic
+    from gijax.io.paths import write_text_atomic
     from gijax.train.tbwriter import drop_events_after
 
     run_dir = Path(run_dir)
@@ -365,44 +365,3 @@ def drop_logs_after(run_dir, step: int) -> None:
         write_text_atomic(path, "".join(line + "\n" for line in kept))
     for events in sorted((run_dir / "tb").glob("events.out.tfevents.*")):
         drop_events_after(events, step)
-
-
-# --------------------------------------------------------------------------- inference
-
-def load_for_inference(run_dir, which: str = "best"):
-    """``(model, model_config, candidates)`` from a run folder alone.
-
-    ``which='best'`` takes the best validated checkpoint when there is one and the newest
-    periodic checkpoint otherwise; ``'latest'`` always the newest periodic one. The model is
-    in eval mode; candidates are the training list, (D,) float32 metres.
-    """
-    from gijax.model import create_model
-    from gijax.train.checkpoints import BEST, PERIODIC
-
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise FileNotFoundError(f"run folder {run_dir} does not exist")
-    cfg, mc, cand = load_run_config(run_dir)
-    model = create_model(mc, cfg.seed)
-    _, _, params, rest = S.split_model(model)
-    tx = S.make_optimizer(cfg)
-    dev = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-    abstract = S.abstract_like(jax.eval_shape(lambda: S.init_state(params, rest, tx)), dev)
-    # Read-only: loading a model must not change the run folder (it may be training right now).
-    store = CheckpointStore(run_dir, keep=max(cfg.keep, 1),
-                            best_metric=cfg.best_metric if cfg.keep_best else None,
-                            best_mode=cfg.best_mode, read_only=True)
-    try:
-        out = None
-        if which == "best" and store.best is not None and store.best.all_steps():
-            out = store.restore_latest(abstract, which=BEST)
-        if out is None:
-            out = store.restore_latest(abstract, which=PERIODIC)
-        if out is None:
-            raise FileNotFoundError(f"run folder {run_dir} holds no checkpoint yet")
-    finally:
-        store.close()
-    state, _ = out
-    S.load_into_model(model, state["params"], state["rest"])
-    model.eval()
-    return model, mc, jnp.asarray(cand, jnp.float32)

@@ -8,12 +8,12 @@ displacement per step (pixels or radians) of EV, the training GI list and the ri
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
 
-from gijax.candidates import (TRAIN_BASELINE, closed_form_steps, ev_candidates, gi_candidates,
-                              rig_gi_candidates, step_uniformity)
+from gijax.candidates import (MEASURE_UNITS, TRAIN_BASELINE, closed_form_steps, ev_candidates,
+                              gi_candidates, rig_gi_candidates, step_uniformity)
+from gijax.io.paths import atomic_path
 
 
 def _closed_panel(ax, n, d_min, d_max, baseline, title):
@@ -45,7 +45,7 @@ def _rig_panel(ax, rig, rig_name, n, d_min, d_max, measure):
     unit = "px"
     for label, c, color, marker in lists:
         u = step_uniformity(rig, c, measure=measure)
-        unit = u["unit"]
+        unit = MEASURE_UNITS[measure]
         steps = np.asarray(u["steps"])
         ax.plot(np.arange(1, n), steps, marker=marker, color=color, ms=4,
                 label=f"{label}: min/max {float(u['min_max_ratio']):.2f}, cv {float(u['cv']):.3f}")
@@ -75,13 +75,9 @@ def plot_candidates(path, n: int = 16, d_min: float = 0.5, d_max: float = 100.0,
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=folder)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
     finally:
         plt.close(fig)
-        if os.path.exists(tmp):
-            os.remove(tmp)
     return path

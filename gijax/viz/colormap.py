@@ -7,7 +7,6 @@ Files are written to a temporary name and renamed, so a partial PNG never looks 
 from __future__ import annotations
 
 import os
-import tempfile
 import textwrap
 
 import matplotlib
@@ -15,6 +14,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
+
+from gijax.io.paths import atomic_path  # noqa: E402
 
 
 def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "turbo",
@@ -42,14 +43,8 @@ def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "turbo",
 def _atomic_savefig(fig, path: str, dpi: int) -> None:
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".png", dir=directory)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 def save_panorama_png(path: str, values: np.ndarray, label: str, vmin: float, vmax: float,

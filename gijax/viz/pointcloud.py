@@ -7,11 +7,11 @@ temporary name and renamed, so a partial file never looks complete.
 from __future__ import annotations
 
 import os
-import tempfile
 
 import numpy as np
 
 from gijax.geometry.panorama import Panorama, ray_grid
+from gijax.io.paths import write_bytes_atomic
 
 
 def panorama_points(distance: np.ndarray, reference, pano: Panorama | None = None,
@@ -59,13 +59,5 @@ def write_ply(path: str, points: np.ndarray, colours: np.ndarray | None = None) 
     header.append("end_header")
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".ply", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(("\n".join(header) + "\n").encode("ascii"))
-            f.write(rec.tobytes())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    write_bytes_atomic(path, ("\n".join(header) + "\n").encode("ascii") + rec.tobytes())
     return path

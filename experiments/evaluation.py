@@ -1,0 +1,241 @@
+"""Evaluation of a method on a test dataset: the compiled predictors (a trained network, the
+classical RTSS baseline), the metrics over every sample, and the cache under ``evals/``.
+
+Metrics (:mod:`gijax.train.metrics`, inverse distance in 1/m): the columns compared with the
+paper's figures (``mae``, ``rmse``, ``ssim``, ``bad_0.1``, ``bad_0.4``) use the paper's
+definitions, ``gijax eval --metrics paper``: per-sample MAE / RMSE over labels inside the
+candidate range (0.5-100 m; sky and nearer pixels excluded), torchmetrics' SSIM, means over
+samples. gijax's own definitions (labels clamped to the range, pooled pixels, fixed-range SSIM)
+are kept beside them with a ``_gijax`` suffix. The classical baseline leaves a few pixels
+without an estimate: MAE and RMSE are taken over its estimated pixels (``coverage`` reports
+their share) and SSIM fills the holes with the farthest candidate.
+
+Each evaluation is stored under ``evals/<key>.json`` (with the first sample's prediction for the
+figures) and reused while its key (method, training command, data, candidates, metric
+definitions) is unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import time
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+
+from experiments.reporting import read_json, write_json
+from gijax.io.paths import write_bytes_atomic
+
+# Identifies the metric definitions of cached evaluations (evals/<key>.json): the paper's
+# columns plus gijax's beside them. Change it when a definition changes.
+METRICS_VERSION = "paper+gijax-1"
+
+# Evaluation fields copied into the table rows: the paper's metric columns, gijax's beside them.
+ROW_METRICS = ("mae", "rmse", "ssim", "bad_0.1", "bad_0.4", "metric_set", "mae_gijax",
+               "rmse_gijax", "ssim_gijax", "bad_0.1_gijax", "bad_0.4_gijax", "pixels_gijax",
+               "coverage", "time_ms", "time_ms_mean", "peak_mb", "samples", "pixels",
+               "candidates", "reused", "eval_seconds")
+
+
+def xla_peak_mb(compiled) -> Optional[float]:
+    """Peak memory of one call of a compiled function, MB: XLA's own heap-simulation peak where
+    the backend reports it, else arguments + outputs + temporaries (None where XLA reports
+    nothing; :func:`gijax.bench.memory.compiled_memory`)."""
+    from gijax.bench.memory import MIB, compiled_memory
+
+    mem = compiled_memory(compiled)
+    if not mem:
+        return None
+    return mem.get("reported_peak_bytes", mem["peak_bytes"]) / MIB
+
+
+_COMPILED: dict = {}
+
+
+def compile_once(tag, args: tuple, build: Callable):
+    """A compiled executable per (tag, argument structure, shapes and dtypes), built once per
+    process: another rig with the same camera count, or another candidate list, reuses it."""
+    import jax
+
+    leaves, treedef = jax.tree.flatten(args)
+    key = (tag, treedef, tuple((tuple(x.shape), str(x.dtype)) for x in leaves))
+    if key not in _COMPILED:
+        _COMPILED[key] = build()
+    return _COMPILED[key]
+
+
+@dataclasses.dataclass
+class Predictor:
+    """``fn(images uint8 (N,h,w,3), masks (N,h,w)) -> (inv_distance (H,W), estimated (H,W))``
+    plus the candidates (D,) metres it uses and the XLA peak memory of one call (MB)."""
+
+    fn: Callable
+    candidates: np.ndarray
+    peak_mb: Optional[float]
+
+
+def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
+    """A trained network (best validated checkpoint) on raw fisheye images of ``rig``.
+
+    The timed call includes the resampling to surrogate images, as the classical baseline's
+    includes its matching views. ``candidates_spec`` is ``gijax eval``'s ``--candidates``.
+    """
+    import jax
+    import jax.numpy as jnp
+    from flax import nnx
+
+    from gijax.candidates.spec import resolve_candidates
+    from gijax.model import forward as model_forward, make_grids
+    from gijax.store import load_for_inference
+    from gijax.sweep.surrogate import as_float_image
+    from gijax.train.trainer import model_rig
+
+    model, mc, train_cand = load_for_inference(run_dir, "best")
+    if mc.cost_volume == "concat" and rig.num_cameras != mc.num_cameras:
+        raise ValueError(f"{mc.name} concatenates exactly {mc.num_cameras} cameras; the rig has "
+                         f"{rig.num_cameras}")
+    cand, _ = resolve_candidates(candidates_spec, rig, mc.num_candidates, mc.d_min, mc.d_max,
+                                 train=train_cand)
+    graphdef, state = nnx.split(model)
+    mrig = model_rig(rig)
+
+    def forward(state, images, masks, rig, cand):
+        out = model_forward(nnx.merge(graphdef, state), as_float_image(images)[None],
+                            masks[None], make_grids(rig, cand, mc))
+        return out["inv_distance"][0]
+
+    cam = rig.cameras[0]
+    n = rig.num_cameras
+    images = jnp.zeros((n, cam.height, cam.width, 3), jnp.uint8)
+    masks = jnp.ones((n, cam.height, cam.width), jnp.float32)
+    jcand = jnp.asarray(cand, jnp.float32)
+    args = (state, images, masks, mrig, jcand)
+    compiled = compile_once(("net", graphdef, mc), args,
+                            lambda: jax.jit(forward).lower(*args).compile())
+
+    def fn(images, masks):
+        inv = compiled(state, jnp.asarray(images), jnp.asarray(masks, jnp.float32), mrig, jcand)
+        inv = jax.block_until_ready(inv)
+        return inv, jnp.ones(inv.shape, bool)
+
+    return Predictor(fn, cand, xla_peak_mb(compiled))
+
+
+def rtss_predictor(rig, preset: str, pano_hw: tuple) -> Predictor:
+    """The classical RTSS preset on raw fisheye images (EV, or GI computed for ``rig``)."""
+    import jax
+    import jax.numpy as jnp
+
+    from gijax.baseline.rtss import get_rtss_preset, preset_candidates, sphere_sweep
+    from gijax.geometry.panorama import Panorama
+
+    config = get_rtss_preset(preset)
+    config = config.replace(match_size=min(config.match_size, min(c.width for c in rig.cameras)))
+    cand = np.asarray(preset_candidates(rig, config), np.float64)
+    pano = Panorama.hemisphere(*pano_hw)
+    cam = rig.cameras[0]
+    n = rig.num_cameras
+    images = jnp.zeros((n, cam.height, cam.width, 3), jnp.float32)
+    masks = jnp.ones((n, cam.height, cam.width), jnp.float32)
+    jcand = jnp.asarray(cand, jnp.float32)
+    # The same compiled function rtss_predict runs, lowered here to read its memory analysis.
+    compiled = compile_once(("rtss", config, pano), (rig, images, masks, jcand),
+                            lambda: sphere_sweep.lower(rig, images, masks, jcand, pano=pano,
+                                                config=config).compile())
+
+    def fn(images, masks):
+        out = compiled(rig, jnp.asarray(images, jnp.float32) / 255.0,
+                       jnp.asarray(masks, jnp.float32), jcand)
+        out = jax.block_until_ready(out)
+        return out["inv_distance"], out["valid"]
+
+    return Predictor(fn, cand, xla_peak_mb(compiled))
+
+
+def evaluate(reader, predictor: Predictor) -> tuple[dict, np.ndarray]:
+    """Metrics of ``predictor`` over every sample of ``reader`` (one sample per call).
+
+    Returns (metrics, the first sample's inverse distance (H, W), NaN where not estimated).
+    ``mae``, ``rmse``, ``ssim``, ``bad_0.1``, ``bad_0.4`` follow the paper's definitions; the
+    same names with a ``_gijax`` suffix follow gijax's (see the module docstring).
+    ``time_ms`` is the median wall time of one call (the predictor is compiled beforehand, so
+    no call includes compilation); ``coverage`` is the share of labelled pixels with an
+    estimate.
+    """
+    import jax.numpy as jnp
+
+    from gijax.data.loader import label_valid
+    from gijax.train.metrics import METRIC_SETS, batch_sums, summarize
+
+    cand = jnp.asarray(predictor.candidates, jnp.float32)
+    far = 1.0 / float(predictor.candidates[-1])
+    parts = {m: [] for m in METRIC_SETS}
+    times, covered, labelled, first = [], 0.0, 0.0, None
+    for i in range(len(reader)):
+        s = reader[i]
+        t0 = time.perf_counter()
+        inv, est = predictor.fn(s["images"], s["masks"])
+        times.append(time.perf_counter() - t0)
+        inv, est = np.asarray(inv, np.float32), np.asarray(est, bool) & np.isfinite(np.asarray(inv))
+        dist = np.asarray(s["pano_distance"], np.float32)
+        if inv.shape != dist.shape:
+            raise ValueError(f"prediction {inv.shape} and label {dist.shape} panoramas differ "
+                             f"({reader.root} sample {i})")
+        valid = label_valid(dist)
+        covered += float(np.sum(valid & est))
+        labelled += float(np.sum(valid))
+        filled = np.where(est, inv, far).astype(np.float32)
+        for m in METRIC_SETS:
+            sums = batch_sums(jnp.asarray(filled[None]), jnp.asarray(dist[None]),
+                              jnp.asarray((valid & est)[None]), cand, metric_set=m)
+            parts[m].append({k: np.asarray(v) for k, v in sums.items()})
+        if first is None:
+            first = np.where(est, inv, np.nan)
+    if not times:
+        raise ValueError(f"{reader.root} has no samples to evaluate")
+    joined = {m: summarize({k: np.concatenate([p[k] for p in ps]) for k in ps[0]}, m)
+              for m, ps in parts.items()}
+    metrics = {**joined["paper"], "metric_set": "paper",
+               **{f"{k}_gijax": v for k, v in joined["gijax"].items()
+                  if k not in ("samples",)}}
+    metrics["coverage"] = covered / max(labelled, 1.0)
+    metrics["time_ms"] = 1000.0 * float(np.median(times))
+    metrics["time_ms_mean"] = 1000.0 * float(np.mean(times))
+    return metrics, first
+
+
+def eval_key(**fields) -> str:
+    text = json.dumps(fields, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def cached_evaluation(work: Path, key_fields: dict, make_predictor: Callable, data: Path) -> dict:
+    """Evaluate once; later calls with the same key return the stored result and prediction."""
+    from gijax.data import DatasetReader
+
+    # Cached results computed under other metric definitions must not be reused.
+    key_fields = {**key_fields, "metrics": METRICS_VERSION}
+    key = eval_key(**key_fields)
+    path = work / "evals" / f"{key}.json"
+    pred_path = work / "evals" / f"{key}.first.npy"
+    stored = read_json(path)
+    if stored and stored.get("key") == key_fields and pred_path.is_file():
+        return {**stored, "first_prediction": np.load(pred_path), "reused": True}
+    reader = DatasetReader(data)
+    t0 = time.perf_counter()
+    predictor = make_predictor(reader.rig)
+    compile_s = time.perf_counter() - t0
+    metrics, first = evaluate(reader, predictor)
+    result = {"key": key_fields, **metrics, "peak_mb": predictor.peak_mb,
+              "candidates": [float(c) for c in predictor.candidates],
+              "compile_seconds": compile_s, "eval_seconds": time.perf_counter() - t0}
+    pred_path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    np.save(buf, first)
+    write_bytes_atomic(pred_path, buf.getvalue())
+    write_json(path, result)
+    return {**result, "first_prediction": first, "reused": False}

@@ -1,0 +1,172 @@
+"""The shared work folder (``--work``): rendered datasets under ``data/`` and training runs under
+``runs/``, each made, resumed or reused by calling the library the ``gijax render`` and ``gijax
+train`` commands are made of.
+
+Everything is resumable: a dataset continues after its last complete sample, an interrupted
+training resumes from the trainer's newest checkpoint, and a finished training
+(``runs/<preset>.done.json``) is reused as it is when its command is unchanged. Each record
+names the equivalent ``gijax`` command, which also keys the reuse.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import time
+from pathlib import Path
+from typing import Optional
+
+from experiments.reporting import log, read_json, write_json
+from experiments.scales import DATA_SEEDS, DATA_STYLE, Scale, model_overrides, preset_name
+
+
+def _command(argv: list) -> str:
+    return "gijax " + shlex.join(map(str, argv))
+
+
+# --------------------------------------------------------------------------- data
+
+def render_argv(scale: Scale, rig: str, samples: int, seed: int, out: Path) -> list:
+    """The ``gijax render`` command equivalent to :func:`ensure_dataset`'s call."""
+    h, w = scale.pano_hw
+    return ["render", "--rig", rig, "--samples", samples, "--out", out, "--seed", seed,
+            "--scale", scale.image_scale, "--pano", f"{w}x{h}", "--style", DATA_STYLE]
+
+
+def ensure_dataset(work: Path, scale: Scale, role: str) -> dict:
+    """Render (or resume, or reuse) one dataset of the work folder; returns its record.
+
+    ``role`` is 'train', 'val' or a test rig name.
+    """
+    from gijax.data.rendered import render_dataset
+    from gijax.geometry.layouts import builtin_rig
+    from gijax.geometry.panorama import Panorama
+
+    rig = "paper-train" if role in ("train", "val") else role
+    samples = {"train": scale.train_samples, "val": scale.val_samples}.get(role)
+    if samples is None:
+        samples = scale.test_samples[role]
+    out = work / "data" / role
+    t0 = time.perf_counter()
+    render_dataset(builtin_rig(rig), out, samples, seed=DATA_SEEDS[role],
+                   image_scale=scale.image_scale, pano=Panorama.hemisphere(*scale.pano_hw),
+                   style=DATA_STYLE, progress=scale.progress, log=log)
+    return {"role": role, "rig": rig, "path": str(out), "samples": samples,
+            "seed": DATA_SEEDS[role], "style": DATA_STYLE,
+            "command": _command(render_argv(scale, rig, samples, DATA_SEEDS[role], out)),
+            "seconds": time.perf_counter() - t0}
+
+
+def dataset_seeds(path: Path) -> list:
+    """The render seeds recorded for the samples of a dataset folder."""
+    from gijax.data import DatasetReader
+    from gijax.data.format import read_file_list
+
+    reader = DatasetReader(path, verify="none")
+    return [int(row["seed"]) for t in reader.manifest["trajectories"]
+            for row in read_file_list(reader.root / t["file_list"], reader.names)
+            if row.get("seed")]
+
+
+def check_held_out(work: Path, tests: list) -> dict:
+    """Sample seeds shared between the training/validation data and each test set (must be 0)."""
+    seen = set(dataset_seeds(work / "data" / "train"))
+    if (work / "data" / "val").exists():
+        seen |= set(dataset_seeds(work / "data" / "val"))
+    overlap = {t: len(seen & set(dataset_seeds(work / "data" / t))) for t in tests}
+    bad = {t: n for t, n in overlap.items() if n}
+    if bad:
+        raise ValueError(f"test data shares scene seeds with the training data: {bad}")
+    return overlap
+
+
+def style_counts(path: Path) -> dict:
+    """How many samples of a 'mixed' dataset are indoor and outdoor scenes."""
+    from gijax.render.render import choose_style
+
+    counts = {"indoor": 0, "outdoor": 0}
+    for s in dataset_seeds(path):
+        counts[choose_style(s, DATA_STYLE)] += 1
+    return counts
+
+
+# --------------------------------------------------------------------------- training
+
+def train_argv(work: Path, scale: Scale, model: str, seed: int) -> list:
+    """The ``gijax train`` command equivalent to :func:`ensure_trained`'s call."""
+    preset = preset_name(scale, model)
+    argv = ["train", "--preset", preset, "--data", work / "data" / "train",
+            "--out", work / "runs" / preset, "--steps", scale.steps, "--batch", scale.batch,
+            "--lr", scale.lr, "--val-every", scale.val_every, "--ckpt-every", scale.ckpt_every,
+            "--seed", seed, "--workers", _workers(scale)]
+    if scale.val_samples:
+        argv += ["--val", work / "data" / "val"]
+    for k, v in model_overrides(scale, model).items():
+        argv += ["--override", f"{k}={json.dumps(v, separators=(',', ':'))}"]
+    if not scale.progress:
+        argv.append("--no-progress")
+    return argv
+
+
+def _workers(scale: Scale) -> int:
+    return 1 if scale.tiny else 2
+
+
+def train_config(scale: Scale, model: str, seed: int):
+    """The :class:`~gijax.train.config.TrainConfig` of :func:`train_argv`'s command (every other
+    field at the command's default)."""
+    from gijax.train.config import TrainConfig
+
+    return TrainConfig(preset=preset_name(scale, model),
+                       model_overrides=model_overrides(scale, model), lr=scale.lr,
+                       batch_size=scale.batch, steps=scale.steps, seed=seed,
+                       val_every=scale.val_every, ckpt_every=scale.ckpt_every,
+                       keep_best=bool(scale.val_samples), workers=_workers(scale))
+
+
+def _metrics_records(run_dir: Path) -> list:
+    path = run_dir / "metrics.jsonl"
+    out = []
+    if path.is_file():
+        for line in path.read_text().splitlines():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue            # a line cut by an interruption
+    return out
+
+
+def last_logged_step(run_dir: Path) -> int:
+    return max([int(r["step"]) for r in _metrics_records(run_dir) if "loss" in r], default=0)
+
+
+def last_validation(run_dir: Path) -> Optional[dict]:
+    vals = [r for r in _metrics_records(run_dir) if r.get("split") == "val"]
+    return vals[-1] if vals else None
+
+
+def ensure_trained(work: Path, scale: Scale, model: str, seed: int) -> dict:
+    """Train one model to ``scale.steps`` (resuming), or reuse a finished run; its record."""
+    from gijax.train.entry import train
+
+    preset = preset_name(scale, model)
+    run_dir = work / "runs" / preset
+    done_file = work / "runs" / f"{preset}.done.json"
+    command = _command(train_argv(work, scale, model, seed))
+    done = read_json(done_file)
+    if done and done.get("command") == command and done.get("steps") == scale.steps:
+        log(f"  {preset}: reusing the finished run {run_dir}")
+        return {**done, "reused": True}
+    start = last_logged_step(run_dir)
+    log(f"  {preset}: training {scale.steps} steps" +
+        (f" (resuming after step {start})" if start else "") + f" -> {run_dir}")
+    t0 = time.perf_counter()
+    train(train_config(scale, model, seed), work / "data" / "train", run_dir,
+          val=work / "data" / "val" if scale.val_samples else None, progress=scale.progress)
+    seconds = time.perf_counter() - t0
+    record = {"model": model, "preset": preset, "run": str(run_dir), "command": command,
+              "steps": scale.steps, "resumed_from_step": start, "train_seconds": seconds,
+              "seconds_per_step": seconds / max(scale.steps - start, 1),
+              "validation": last_validation(run_dir), "finished_unix": time.time()}
+    write_json(done_file, record)
+    return {**record, "reused": False}

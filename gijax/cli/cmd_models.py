@@ -1,0 +1,39 @@
+"""``gijax models``: the trained models shipped with gijax, usable by name with ``--ckpt``."""
+
+from __future__ import annotations
+
+import json
+
+HELP = "list the bundled trained models (usable by name: --ckpt NAME)"
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "models", help=HELP,
+        description=(
+            "List the inference bundles shipped inside gijax (gijax/assets): name, preset, "
+            "parameter count and what each was trained on (from its PROVENANCE.json). Every "
+            "--ckpt (predict, eval, export, demo) accepts such a name as well as a path; a path "
+            "that exists wins."))
+    p.add_argument("--json", action="store_true", help="print one JSON list instead of text")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from gijax.store import bundled_names, describe_bundled
+
+    models = [describe_bundled(name) for name in bundled_names()]
+    if args.json:
+        print(json.dumps([{"name": m.name, "preset": m.preset, "parameters": m.parameters,
+                           "trained_on": m.trained_on, "path": str(m.path),
+                           "candidates": m.candidates} for m in models], indent=2))
+        return 0
+    if not models:
+        print("no bundled models in this installation")
+        return 0
+    width = max(len(m.name) for m in models)
+    print(f"{'name':<{width}}  {'preset':<14}{'parameters':>12}  trained on")
+    for m in models:
+        print(f"{m.name:<{width}}  {m.preset:<14}{m.parameters:>12,}  {m.trained_on}")
+    print(f"use one with --ckpt NAME, e.g. gijax predict --ckpt {models[0].name} ...")
+    return 0

@@ -1,0 +1,103 @@
+"""The bundles shipped inside the package (``gijax/assets/NAME``), found by name.
+
+Every ``--ckpt`` takes a path or the name of one of these bundles (``--ckpt G16VV-cpu``); a
+path that exists wins over a name. ``gijax models`` lists them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+from gijax.store.bundles import is_bundle, read_provenance
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+
+
+def bundled_names() -> list[str]:
+    """Names of the bundles in the package, sorted."""
+    if not ASSETS.is_dir():
+        return []
+    return sorted(p.name for p in ASSETS.iterdir() if p.is_dir() and is_bundle(p))
+
+
+def resolve_model_path(spec: str | os.PathLike) -> Path:
+    """The folder ``--ckpt spec`` means: ``spec`` itself when it exists, else the bundled model
+    of that name. FileNotFoundError listing the bundled names when it is neither."""
+    path = Path(spec)
+    if path.exists():
+        return path
+    if str(spec) in bundled_names():
+        return ASSETS / str(spec)
+    raise FileNotFoundError(f"{spec}: no such run folder or bundle, and no bundled model of that "
+                            f"name ({_listing()})")
+
+
+def _listing() -> str:
+    names = bundled_names()
+    return (f"bundled models: {', '.join(names) if names else 'none in this installation'}; "
+            f"'gijax models' describes them")
+
+
+@dataclasses.dataclass(frozen=True)
+class BundledModel:
+    """What ``gijax models`` shows of one bundled model."""
+
+    name: str
+    path: Path
+    preset: str
+    parameters: int
+    candidates: list
+    trained_on: str
+    provenance: dict
+
+
+def parameter_count(config) -> int:
+    """Trainable parameters of a network of ``config``, counted on its abstract shapes (no
+    weights are made)."""
+    import jax
+    import numpy as np
+    from flax import nnx
+
+    from gijax.model import create_model
+
+    abstract = nnx.eval_shape(lambda: create_model(config, 0))
+    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(nnx.state(abstract, nnx.Param))))
+
+
+def trained_on(provenance: dict) -> str:
+    """One line from a bundle's provenance: the data it was trained on, or where its weights
+    came from."""
+    data = provenance.get("data")
+    if isinstance(data, dict) and data:
+        parts = []
+        if "train_samples" in data:
+            style = f" {data['style']}" if data.get("style") else ""
+            parts.append(f"{data['train_samples']} rendered{style} scenes")
+        if data.get("rig"):
+            parts.append(f"on {data['rig']}")
+        if data.get("camera_images"):
+            parts.append(f"({data['camera_images']})")
+        text = " ".join(parts) or ", ".join(f"{k} {v}" for k, v in data.items())
+        if provenance.get("checkpoint"):
+            text += f"; {provenance['checkpoint']}"
+        return text
+    if provenance.get("source"):
+        return f"weights converted from {Path(str(provenance['source'])).name}"
+    return "not recorded (no PROVENANCE.json)"
+
+
+def describe_bundled(name: str) -> BundledModel:
+    """The :class:`BundledModel` of bundle ``name`` (config and provenance only; no weights are
+    loaded)."""
+    from gijax.store.configs import read_run_config
+
+    if name not in bundled_names():
+        raise FileNotFoundError(f"{name}: no bundled model of that name ({_listing()})")
+    path = ASSETS / name
+    run = read_run_config(path)
+    prov = read_provenance(path)
+    return BundledModel(name=name, path=path, preset=run.model.name,
+                        parameters=parameter_count(run.model), candidates=list(run.candidates),
+                        trained_on=trained_on(prov), provenance=prov)

@@ -1,0 +1,142 @@
+"""Orbax checkpoint folders of a run: their layout, and restoring the newest readable one.
+
+``RUN/checkpoints/<step>/`` holds the periodic checkpoints and ``RUN/best/<step>/`` the best
+one by a validation metric. Each checkpoint has two items: ``state`` (a pytree: the training
+state) and ``meta`` (JSON: step, preset, candidate list, loader position, metrics). orbax writes
+into a temporary folder and renames it when complete, so a folder that looks complete is one.
+
+This module opens those folders for the trainer (which saves, and on resume moves unreadable
+checkpoints aside) and for every reader (evaluation, inference, export), which changes
+nothing: it skips an unreadable checkpoint with a one-line warning and leaves temporary folders
+alone, since they may belong to a training process that is saving right now.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import warnings
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+import orbax.checkpoint as ocp
+
+PERIODIC = "checkpoints"
+BEST = "best"
+CORRUPT = "corrupt"
+STATE, META = "state", "meta"
+
+
+class ConfigurationMismatch(ValueError):
+    """A readable checkpoint that belongs to another configuration than the one restoring it
+    (another preset, candidate count or parameter shapes): an error, not damage to skip."""
+
+
+def open_manager(directory: Path, keep: int = 1, best_metric: str | None = None,
+                 best_mode: str = "min", read_only: bool = False) -> ocp.CheckpointManager:
+    """The orbax manager of one checkpoint folder (``RUN/checkpoints`` or ``RUN/best``).
+
+    ``keep`` checkpoints are kept when saving; ``best_metric`` ranks them (``best_mode`` 'min'
+    or 'max'). A ``read_only`` manager creates, cleans and deletes nothing.
+    """
+    opts = dict(max_to_keep=keep, create=not read_only, enable_async_checkpointing=False,
+                cleanup_tmp_directories=not read_only)
+    if best_metric is not None:
+        opts.update(best_fn=lambda m: float(m[best_metric]), best_mode=best_mode,
+                    keep_checkpoints_without_metrics=False)
+    # Handlers named up front let the metadata of a step be read without restoring it.
+    handlers = {STATE: ocp.StandardCheckpointHandler(), META: ocp.JsonCheckpointHandler()}
+    return ocp.CheckpointManager(Path(directory).absolute(),
+                                 options=ocp.CheckpointManagerOptions(**opts),
+                                 item_handlers=handlers)
+
+
+@contextlib.contextmanager
+def quiet_restore():
+    """Silence asyncio's logger while orbax restores: when one array of a damaged checkpoint
+    fails, every other pending read is cancelled and asyncio logs each one with a full
+    traceback (thousands of lines for a real model). The failure itself still raises."""
+    logger = logging.getLogger("asyncio")
+    previous = logger.disabled
+    logger.disabled = True
+    try:
+        yield
+    finally:
+        logger.disabled = previous
+
+
+def failure_reason(exc: BaseException) -> str:
+    """The innermost cause of a restore failure, on one line (orbax wraps the real one)."""
+    seen = []
+    while exc is not None and exc not in seen:
+        seen.append(exc)
+        exc = exc.__cause__ or exc.__context__
+    root = seen[-1]
+    text = (str(root).strip().splitlines() or [""])[0]
+    return f"{type(root).__name__}: {text[:200]}"
+
+
+def step_dir(manager: ocp.CheckpointManager, step: int) -> Path:
+    return Path(manager.directory) / str(step)
+
+
+def read_meta(manager: ocp.CheckpointManager, step: int) -> dict:
+    """The ``meta`` item of ``step``."""
+    with quiet_restore():
+        out = manager.restore(step, args=ocp.args.Composite(**{META: ocp.args.JsonRestore()}))
+    return dict(out[META])
+
+
+def state_metadata(manager: ocp.CheckpointManager, step: int):
+    """The stored structure of ``step``'s ``state`` item: a pytree of orbax array metadata
+    (shape, dtype, name), read without loading any array."""
+    tree = manager.item_metadata(step)[STATE]
+    return getattr(tree, "tree", tree)
+
+
+def skip_unreadable(manager: ocp.CheckpointManager, step: int, exc: BaseException) -> None:
+    """What a reader does with an unreadable checkpoint: warn and go on to the next older one."""
+    warnings.warn(f"checkpoint {step_dir(manager, step)} is unreadable ({failure_reason(exc)}); "
+                  f"skipping it and falling back to the previous checkpoint", RuntimeWarning,
+                  stacklevel=3)
+
+
+def restore_newest(manager: ocp.CheckpointManager, abstract_for: Callable[[int], Any],
+                   check: Optional[Callable[[int, dict], None]] = None,
+                   unreadable: Callable = skip_unreadable,
+                   note: str = "") -> Optional[tuple[Any, dict]]:
+    """The newest readable checkpoint of ``manager`` -> ``(state, meta)``; None when there is
+    none at all.
+
+    ``abstract_for(step)`` gives the pytree of ``jax.ShapeDtypeStruct`` (with shardings) that
+    fixes the structure, dtypes and placement of the restored state. ``check(step, meta)`` may
+    raise ValueError, and ``abstract_for`` :class:`ConfigurationMismatch`, for a checkpoint that
+    belongs to another configuration: that is the caller's error, not damage, so it propagates.
+    A checkpoint whose meta, structure or arrays cannot be read is passed to
+    ``unreadable(manager, step, exc)`` and the next older one is tried. ValueError (ending with
+    ``note``) when checkpoints exist but none is readable.
+    """
+    steps = sorted(manager.all_steps(), reverse=True)
+    if not steps:
+        return None
+    for step in steps:
+        try:
+            meta = read_meta(manager, step)
+        except Exception as exc:                       # noqa: BLE001 - any read failure
+            unreadable(manager, step, exc)
+            continue
+        if check is not None:
+            check(step, meta)
+        try:
+            abstract = abstract_for(step)
+            with quiet_restore():
+                out = manager.restore(step, args=ocp.args.Composite(
+                    **{STATE: ocp.args.StandardRestore(abstract)}))
+        except ConfigurationMismatch:
+            raise
+        except Exception as exc:                       # noqa: BLE001
+            unreadable(manager, step, exc)
+            continue
+        return out[STATE], meta
+    raise ValueError(f"{Path(manager.directory)}: no readable checkpoint among steps "
+                     f"{steps}{note}")

@@ -1,0 +1,77 @@
+"""Model and run configurations on disk: the JSON documents every trained model carries.
+
+``config.json`` sits in every training run folder and every inference bundle::
+
+    {"train": {TrainConfig fields}, "model": {ModelConfig fields},
+     "candidates": [training candidates, metres], "rig": "what the run trained on"}
+
+The store reads the model half and the candidates (all inference needs) and hands the training
+half back as a plain dict: interpreting it is the trainer's business (:mod:`gijax.train.config`).
+A model configuration file (``--preset FILE.json``) holds the ModelConfig fields alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+from gijax.nn.presets import ModelConfig, get_preset
+
+CONFIG_FILE = "config.json"
+
+
+def model_config_to_dict(config: ModelConfig) -> dict:
+    """JSON-ready fields (tuples become lists)."""
+    return {k: list(v) if isinstance(v, tuple) else v
+            for k, v in dataclasses.asdict(config).items()}
+
+
+def model_config_from_dict(fields: dict) -> ModelConfig:
+    """The inverse of :func:`model_config_to_dict`; fields a document lacks take their defaults
+    (documents written before a field existed), unknown fields are a TypeError."""
+    return ModelConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+
+
+def read_preset(spec: str) -> ModelConfig:
+    """A preset name (``G16VV-cpu``) or a JSON file of ModelConfig fields -> ModelConfig."""
+    if not spec.lower().endswith(".json"):
+        return get_preset(spec)
+    path = Path(spec)
+    if not path.is_file():
+        raise FileNotFoundError(f"{spec}: no such model configuration file")
+    try:
+        return model_config_from_dict(json.loads(path.read_text()))
+    except (json.JSONDecodeError, TypeError, AttributeError) as exc:
+        raise ValueError(f"{spec}: not a JSON object of ModelConfig fields ({exc})") from exc
+
+
+class RunConfig(NamedTuple):
+    """``config.json`` of a run folder or bundle, as read by :func:`read_run_config`."""
+
+    train: dict          # TrainConfig fields, uninterpreted
+    model: ModelConfig
+    candidates: list     # training candidates, metres
+    rig: str
+
+
+def run_config_document(train: dict, model: ModelConfig, candidates, rig: str = "") -> dict:
+    """The ``config.json`` document (see the module docstring)."""
+    return {"train": dict(train), "model": model_config_to_dict(model),
+            "candidates": [float(c) for c in candidates], "rig": rig}
+
+
+def read_run_config(folder: str | os.PathLike) -> RunConfig:
+    """``FOLDER/config.json`` of a run folder or bundle."""
+    path = Path(folder) / CONFIG_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no run configuration (is {folder} a training run "
+                                f"folder or a bundle?)")
+    try:
+        doc = json.loads(path.read_text())
+        return RunConfig(dict(doc["train"]), model_config_from_dict(doc["model"]),
+                         list(doc["candidates"]), str(doc.get("rig", "")))
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"{path}: unreadable run configuration ({exc})") from exc

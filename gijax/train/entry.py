@@ -1,0 +1,82 @@
+"""Training a run folder from a :class:`TrainConfig` and dataset folders: ``gijax train`` as a
+function (the command parses its options into a config and calls :func:`train`; the
+experiments call it directly)."""
+
+from __future__ import annotations
+
+import os
+from typing import NamedTuple, Optional
+
+from gijax.train.config import TrainConfig
+
+
+class TrainingResult(NamedTuple):
+    step: int              # optimiser steps done (the run's step after this call)
+    history: list          # the records logged by this call (training and validation)
+
+    @property
+    def last_loss(self) -> Optional[float]:
+        losses = [r["loss"] for r in self.history if "loss" in r]
+        return losses[-1] if losses else None
+
+    @property
+    def last_validation(self) -> Optional[dict]:
+        vals = [r for r in self.history if r.get("split") == "val"]
+        return vals[-1] if vals else None
+
+
+def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, *,
+          val: str | os.PathLike | None = None, rig: str | None = None,
+          allow_partial: bool = False, check_data: bool = True,
+          progress: bool = True) -> TrainingResult:
+    """Train (or resume) the run folder ``out`` on dataset ``data`` until ``config.steps``.
+
+    Args:
+      config: how to train (``keep_best`` only takes effect with ``val``).
+      data / val: training and validation dataset folders, gijax's layout or the release's
+        (``DIR@KEY`` reads partition KEY).
+      rig: rig name or file for the sweep geometry (default: the training dataset's rig).
+      allow_partial: accept datasets holding fewer samples than their manifest requests.
+      check_data: read every file of gijax-layout datasets first (a damaged file then fails
+        before training, not when the loader reaches it).
+      progress: progress bars.
+    """
+    from gijax.data import DatasetReader
+    from gijax.data.check import require_clean
+    from gijax.io.paths import check_output_dir
+    from gijax.train.sources import dataset_stream_factory, open_dataset, validation_batches
+    from gijax.train.trainer import Trainer
+
+    check_output_dir(out)
+    mc = config.model_config()
+
+    def opened(path, what):
+        reader = open_dataset(path, what, allow_partial)
+        if check_data and isinstance(reader, DatasetReader):
+            require_clean(reader.root, what, allow_partial, progress)
+        return reader
+
+    reader = opened(data, "training")
+    if rig:
+        from gijax.io.rigfile import load_rig
+
+        train_rig = load_rig(rig)
+    else:
+        train_rig = reader.rig
+    make_stream = dataset_stream_factory(reader, train_rig, config.batch_size, config.seed,
+                                         mc.surrogate_hw, mask_augmentation=mc.mask_augmentation,
+                                         workers=config.workers)
+    make_val, val_rig = None, None
+    if val:
+        val_reader = opened(val, "validation")
+        make_val = lambda: validation_batches(val_reader, val_reader.rig,  # noqa: E731
+                                              config.batch_size, mc.surrogate_hw,
+                                              config.val_batches)
+        val_rig = val_reader.rig
+    trainer = Trainer(config, out, train_rig, make_stream, make_val, rig_name=rig or str(data),
+                      progress=progress, val_rig=val_rig)
+    try:
+        history = trainer.fit()
+    finally:
+        trainer.close()
+    return TrainingResult(trainer.start_step, history)

@@ -1,0 +1,142 @@
+"""Reading trained models (gijax.store): run folders (best / latest checkpoint, shape checks,
+read-only), bundled models by name, and every --ckpt's error when a name matches nothing."""
+
+import dataclasses
+import json
+
+import jax
+import numpy as np
+import pytest
+from flax import nnx
+
+from gijax.cli import main
+from gijax.model import create_model
+from gijax.store import load_model, resolve_model_path
+from gijax.store.assets import ASSETS, bundled_names
+from gijax.store.configs import model_config_from_dict
+from gijax.train import step as S
+from gijax.train.checkpoints import CheckpointStore
+from gijax.train.config import TrainConfig, save_run_config
+
+TINY = dict(feature_blocks=[1, 1], unet_base=8, feature_channels=4, unet_in=4)
+CAND = np.geomspace(0.5, 100.0, 16)
+
+
+def _snapshot(folder):
+    return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in sorted(folder.rglob("*"))}
+
+
+def _params_of(model):
+    return [np.asarray(x) for x in jax.tree.leaves(nnx.state(model, nnx.Param))]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A run folder with periodic checkpoints at steps 1 and 2 and a best one at step 1, each
+    holding distinct parameters (the initial ones times 2, 3 and 5 plus a step offset)."""
+    folder = tmp_path_factory.mktemp("store") / "run"
+    cfg = TrainConfig(preset="G16V-released-cpu", model_overrides=TINY, seed=4)
+    model = create_model(cfg.model_config(), 4)
+    _, _, params, rest = S.split_model(model)
+    folder.mkdir()
+    save_run_config(folder, cfg, CAND, rig_name="paper-train")
+    tx = S.make_optimizer(cfg)
+    store = CheckpointStore(folder, keep=2, best_metric="mae")
+    saved = {}
+    for step, factor in ((1, 2.0), (2, 3.0)):
+        p = jax.tree.map(lambda x: x * factor + step, params)
+        store.save(step, S.init_state(p, rest, tx), {"step": step})
+        saved[("latest", step)] = [np.asarray(x) for x in jax.tree.leaves(p)]
+    best = jax.tree.map(lambda x: x * 5.0 - 1.0, params)
+    store.maybe_save_best(1, S.init_state(best, rest, tx), {"step": 1}, {"mae": 0.5})
+    saved["best"] = [np.asarray(x) for x in jax.tree.leaves(best)]
+    store.close()
+    return {"folder": folder, "cfg": cfg, "saved": saved}
+
+
+def test_run_folder_best_and_latest_restore_exactly_and_read_only(run):
+    folder = run["folder"]
+    before = _snapshot(folder)
+    model, mc, cand = load_model(folder)
+    assert mc == run["cfg"].model_config()
+    assert cand.dtype == np.float64
+    np.testing.assert_array_equal(cand, CAND)
+    for got, want in zip(_params_of(model), run["saved"]["best"], strict=True):
+        np.testing.assert_array_equal(got, want)
+    latest, _, _ = load_model(folder, which="latest")
+    for got, want in zip(_params_of(latest), run["saved"][("latest", 2)], strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert _snapshot(folder) == before            # reading changes nothing in the run folder
+    with pytest.raises(ValueError, match="which must be one of"):
+        load_model(folder, which="newest")
+
+
+def test_checkpoint_of_another_configuration_is_named_not_skipped(run, tmp_path):
+    folder = tmp_path / "other"
+    folder.mkdir()
+    cfg = run["cfg"]
+    with pytest.raises(FileNotFoundError, match="no run configuration"):
+        load_model(folder)
+    save_run_config(folder, cfg, CAND)
+    with pytest.raises(FileNotFoundError, match="holds no checkpoint"):
+        load_model(folder)
+    # Weights of a wider U-Net under this config.json: one error naming the parameter and both
+    # shapes, not a warning about a damaged checkpoint.
+    wider = dataclasses.replace(cfg.model_config(), unet_base=16)
+    _, _, params, rest = S.split_model(create_model(wider))
+    store = CheckpointStore(folder, keep=1, best_metric=None)
+    store.save(1, S.init_state(params, rest, S.make_optimizer(cfg)), {"step": 1})
+    store.close()
+    with pytest.raises(ValueError, match=r"has shape \(.*\) in the checkpoint but config.json"):
+        load_model(folder)
+
+
+def test_bundled_models_by_name_and_path_precedence(tmp_path, monkeypatch):
+    names = bundled_names()
+    assert "G16VV-cpu" in names
+    assert resolve_model_path("G16VV-cpu") == ASSETS / "G16VV-cpu"
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "G16VV-cpu").mkdir()              # a path that exists wins over the name
+    assert resolve_model_path("G16VV-cpu").resolve() == (tmp_path / "G16VV-cpu").resolve()
+    with pytest.raises(FileNotFoundError, match="bundled models: .*G16VV-cpu"):
+        resolve_model_path("no-such-model")
+
+
+def test_models_command_lists_preset_parameters_and_training_data(capsys):
+    assert main(["models", "--json"]) == 0
+    listed = {m["name"]: m for m in json.loads(capsys.readouterr().out)}
+    m = listed["G16VV-cpu"]
+    config = json.loads((ASSETS / "G16VV-cpu" / "config.json").read_text())
+    prov = json.loads((ASSETS / "G16VV-cpu" / "PROVENANCE.json").read_text())
+    assert m["preset"] == config["model"]["name"] == "G16VV-cpu"
+    # The count of a concretely built network's parameters.
+    eager = create_model(model_config_from_dict(config["model"]), 0)
+    assert m["parameters"] == sum(x.size for x in _params_of(eager)) > 100_000
+    assert f"{prov['data']['train_samples']} rendered" in m["trained_on"]
+    assert prov["data"]["rig"] in m["trained_on"]
+    assert main(["models"]) == 0
+    text = capsys.readouterr().out
+    assert "G16VV-cpu" in text and f"{m['parameters']:,}" in text
+
+
+def test_every_ckpt_names_the_bundled_models_when_nothing_matches(tmp_path, capsys):
+    import cv2
+
+    images = []
+    for i in range(3):
+        images.append(str(tmp_path / f"c{i}.png"))
+        cv2.imwrite(images[-1], np.zeros((8, 8, 3), np.uint8))
+    commands = [
+        ["predict", "--ckpt", "no-such-model", "--rig", "paper-train", "--images", *images,
+         "--out", str(tmp_path / "pred")],
+        ["export", "--ckpt", "no-such-model", "--rig", "paper-train", "--out",
+         str(tmp_path / "m.onnx")],
+        ["eval", "--ckpt", "no-such-model", "--data", str(tmp_path / "data")],
+        ["demo", "--ckpt", "no-such-model", "--out", str(tmp_path / "demo")],
+    ]
+    for argv in commands:
+        capsys.readouterr()
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err
+        assert "no-such-model" in err and "bundled models: G16VV-cpu" in err, (argv, err)
+        assert len(err.strip().splitlines()) == 1, err
