@@ -43,6 +43,11 @@ def register(subparsers) -> None:
     p.add_argument("--val-batches", type=int, default=0, help="limit validation batches (0: all)")
     p.add_argument("--ckpt-every", type=int, default=100, help="steps between checkpoints")
     p.add_argument("--keep", type=int, default=3, help="periodic checkpoints kept")
+    p.add_argument("--augment", default="none",
+                   choices=["none", "photometric", "photometric+body"],
+                   help="augment the training fisheyes (never validation): sensor noise, blur, "
+                        "exposure / white balance / gamma, vignetting, JPEG; '+body' adds random "
+                        "rig-body outlines to the masks (docs/data.md, Augmentations)")
     p.add_argument("--workers", type=int, default=2, help="data loader threads")
     p.add_argument("--candidates", default=None,
                    help="JSON file with a list of distances (m); default: the preset's kind "
@@ -80,7 +85,7 @@ def run(args) -> int:
         batch_size=args.batch, grad_accum=args.grad_accum, steps=args.steps, seed=args.seed,
         bf16=args.bf16, val_every=args.val_every, val_batches=args.val_batches,
         ckpt_every=args.ckpt_every, keep=args.keep, keep_best=bool(args.val),
-        workers=args.workers,
+        workers=args.workers, augment=args.augment,
         candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
     result = train(cfg, args.data, args.out, val=args.val, rig=args.rig,
                    allow_partial=args.allow_partial, check_data=not args.no_data_check,

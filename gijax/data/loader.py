@@ -24,7 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gijax.data.augment import augment_masks, augmentation_rng
+from gijax.data.augment import (AugmentConfig, augment_masks, augment_sample, augmentation_key,
+                                augmentation_rng)
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig, is_homogeneous
 from gijax.sweep.surrogate import (resample_surrogates, surrogate_image, surrogate_images,
@@ -32,6 +33,7 @@ from gijax.sweep.surrogate import (resample_surrogates, surrogate_image, surroga
 
 _SHUFFLE_STREAM = 0x73687566
 _surrogate_one = jax.jit(surrogate_image, static_argnames=("pano",))
+_augment = jax.jit(augment_sample, static_argnames=("config",))
 # Settings a saved state is only valid for.
 _STATE_KEYS = ("seed", "batch_size", "shuffle", "process_index", "process_count", "num_samples",
                "drop_last")
@@ -77,6 +79,9 @@ class Loader:
       surrogate: the surrogate panorama (the paper's 512 x 2048 hemisphere by default).
       shuffle: permute samples every epoch (else dataset order).
       mask_augmentation: the paper's random rectangle erased from one camera's mask per sample.
+      augment: photometric / body-outline augmentation of every sample's fisheyes
+        (:func:`gijax.data.augment.augment_sample`), drawn from ``(seed, epoch, index)``;
+        None (or a config that is all off) leaves the images alone. For training only.
       workers: loader threads (0 loads in the calling thread).
       process_index, process_count: this process's shard for multi-host training.
       state: a :meth:`state` to resume from.
@@ -91,7 +96,7 @@ class Loader:
                  mask_augmentation: bool = False, workers: int = 2, process_index: int = 0,
                  process_count: int = 1, state: dict | None = None, drop_last: bool = True,
                  prefetch: int = 2, num_epochs: int | None = None,
-                 use_sample_masks: bool = True):
+                 use_sample_masks: bool = True, augment: AugmentConfig | None = None):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1; found {batch_size}")
         if not 0 <= process_index < process_count:
@@ -104,6 +109,7 @@ class Loader:
         self.surrogate = surrogate
         self.shuffle = bool(shuffle)
         self.mask_augmentation = bool(mask_augmentation)
+        self.augment = None if augment is None or augment.is_identity() else augment
         self.workers = int(workers)
         self.process_index = int(process_index)
         self.process_count = int(process_count)
@@ -188,6 +194,8 @@ class Loader:
         if self.mask_augmentation:
             images, masks, _ = augment_masks(images, masks,
                                              augmentation_rng(self.seed, epoch, int(index)))
+        if self.augment is not None:
+            images, masks = self._augment_pixels(images, masks, int(index), epoch)
         if self._grids is not None:
             sur, smask = _resample(*self._grids, jnp.asarray(np.stack(images)),
                                              jnp.asarray(np.stack(masks)))
@@ -202,6 +210,17 @@ class Loader:
         return {"images": np.asarray(sur, np.float32),
                 "masks": np.asarray(smask, np.float32),
                 "distance": distance, "valid": label_valid(distance), "index": int(index)}
+
+    def _augment_pixels(self, images, masks, index: int, epoch: int):
+        key = augmentation_key(self.seed, epoch, index)
+        centres = np.array([[float(c.cx), float(c.cy)] for c in self.rig.cameras], np.float32)
+        if len({m.shape for m in masks}) == 1:
+            out_i, out_m = _augment(key, np.stack(images), np.stack(masks), self.augment, centres)
+            return list(np.asarray(out_i)), list(np.asarray(out_m))
+        # Cameras of different sizes: one camera at a time, each on its own sub-key.
+        outs = [_augment(jax.random.fold_in(key, i), im[None], m[None], self.augment,
+                         centres[i:i + 1]) for i, (im, m) in enumerate(zip(images, masks))]
+        return [np.asarray(o[0][0]) for o in outs], [np.asarray(o[1][0]) for o in outs]
 
     def _schedule(self) -> None:
         while len(self._pending) < self.prefetch:

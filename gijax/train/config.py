@@ -49,6 +49,7 @@ class TrainConfig:
       workers: loader worker threads; candidates: None for the preset's kind computed for the
         training rig, or a list of distances in metres.
       sample_images: prediction images written per validation.
+      augment: training-image augmentation, a ``gijax.data.augment.AUGMENT_PRESETS`` name.
     """
 
     preset: str = "G16VV-cpu"
@@ -76,6 +77,7 @@ class TrainConfig:
     workers: int = 2
     candidates: Optional[list] = None
     sample_images: int = 2
+    augment: str = "none"
 
     def __post_init__(self) -> None:
         def fail(field, expected, found):

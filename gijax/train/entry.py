@@ -42,6 +42,7 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
       progress: progress bars.
     """
     from gijax.data import DatasetReader
+    from gijax.data.augment import augment_preset
     from gijax.data.check import require_clean
     from gijax.io.paths import check_output_dir
     from gijax.train.sources import dataset_stream_factory, open_dataset, validation_batches
@@ -65,7 +66,8 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
         train_rig = reader.rig
     make_stream = dataset_stream_factory(reader, train_rig, config.batch_size, config.seed,
                                          mc.surrogate_hw, mask_augmentation=mc.mask_augmentation,
-                                         workers=config.workers)
+                                         workers=config.workers,
+                                         augment=augment_preset(config.augment))
     make_val, val_rig = None, None
     if val:
         val_reader = opened(val, "validation")

@@ -114,8 +114,9 @@ def open_dataset(path: str | Path, what: str = "training", allow_partial: bool =
 
 def dataset_stream_factory(reader, rig, batch_size: int, seed: int, surrogate_hw, *,
                            mask_augmentation: bool = False, workers: int = 2,
-                           what: str = "training") -> Callable:
-    """Factory for :class:`gijax.data.Loader` streams over ``reader`` (global ``batch_size``)."""
+                           what: str = "training", augment=None) -> Callable:
+    """Factory for :class:`gijax.data.Loader` streams over ``reader`` (global ``batch_size``);
+    ``augment`` is the loader's :class:`gijax.data.augment.AugmentConfig` (None: off)."""
     from gijax.data import Loader
     from gijax.geometry.panorama import Panorama
 
@@ -131,7 +132,7 @@ def dataset_stream_factory(reader, rig, batch_size: int, seed: int, surrogate_hw
             state = {k: v for k, v in state.items() if k not in ("process_index",)}
         return Loader(reader, rig, batch_size=per_process, seed=seed,
                       surrogate=Panorama.hemisphere(*surrogate_hw), shuffle=True,
-                      mask_augmentation=mask_augmentation, workers=workers,
+                      mask_augmentation=mask_augmentation, workers=workers, augment=augment,
                       process_index=jax.process_index(), process_count=jax.process_count(),
                       state=state)
 
