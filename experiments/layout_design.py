@@ -54,9 +54,9 @@ def search_comparison(spec, starts: int, steps: int, seed: int) -> dict:
     rnd = random_search(spec, budget, seed=seed, batch=starts)
     grid = grid_search(spec, budget, batch=starts)
     # Warm timings of one batch (compilation excluded) for the cost of a value vs a gradient.
-    from gijax.design.optimize import _adam_fns
+    from gijax.design.optimize import adam_step
 
-    tx, step = _adam_fns(spec, 0.05, steps)
+    tx, step = adam_step(spec, 0.05, steps)
     lays = adam.layouts
     state = tx.init(lays)
     jax.block_until_ready(step(lays, state))

@@ -155,7 +155,10 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
 
     base = [a if a != "E8-cpu" else "G8-cpu" for a in argv]
     fails(base, "preset", "E8-cpu", "G8-cpu")                    # resume with another preset
-    fails(argv + ["--override", "num_candidates=16"], "8 candidates", "16")                                          # another candidate count
+    fails(argv + ["--override", "num_candidates=16"], "8 candidates", "16")  # another candidate count
+    fails(argv + ["--override", "unet_base=4"], "another network configuration")
+    # Another 3-D conv lowering computes the same weights: the finished run resumes (and stops).
+    assert main(argv + ["--override", 'conv3d="native"']) == 0
     fails([("--out" if a == "--out" else (str(tmp_path / "run2") if a == str(run) else a))
            for a in argv[:argv.index("--batch") + 1]] + ["8"] + argv[argv.index("--batch") + 2:],
           "batch size 8", "larger")                               # batch larger than the data

@@ -121,6 +121,7 @@ NOT_TRACED = {
     "gijax.design.optimize.evaluate_layouts": "chunked evaluation loop with NumPy output",
     "gijax.design.optimize.optimize_layout": "search loop (progress bar, Python results)",
     "gijax.design.optimize.random_search": "search loop",
+    "gijax.design.optimize.adam_step": "builds an optimiser and its compiled step (cached)",
     "gijax.design.optimize.grid_search": "search loop",
     "gijax.design.optimize.grid_points": "NumPy lattice of a static spec",
     "gijax.design.optimize.regular_layout": "NumPy geometry of a static spec",

@@ -171,7 +171,11 @@ def terms_to_python(terms: dict) -> dict:
 
 
 @functools.lru_cache(maxsize=16)
-def _adam_fns(spec: DesignSpec, lr: float, steps: int):
+def adam_step(spec: DesignSpec, lr: float, steps: int):
+    """``(tx, step)``: the Adam transform (cosine-decayed from ``lr`` over ``steps``) and the
+    compiled step ``step(layouts, opt_state) -> (layouts, opt_state, losses)`` of a batch of
+    layouts, projected onto the footprint after each update. Cached per (spec, lr, steps), so
+    every caller shares one compiled program."""
     schedule = optax.cosine_decay_schedule(lr, max(steps, 1), alpha=0.05)
     tx = optax.adam(schedule)
     value_grad = jax.vmap(jax.value_and_grad(lambda lay: total_loss(lay, spec)))
@@ -205,7 +209,7 @@ def optimize_layout(spec: DesignSpec, starts: int = 8, steps: int = 200, seed: i
         init = random_layouts(jax.random.PRNGKey(seed), spec, starts, dtype)
     layouts = project(jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), init), spec)
     k = layouts.positions.shape[0]
-    tx, step = _adam_fns(spec, float(lr), int(steps))
+    tx, step = adam_step(spec, float(lr), int(steps))
     opt_state = tx.init(layouts)
     history = []
     for _ in tqdm(range(steps), desc=f"design {spec.num_cameras} cameras, {k} starts",

@@ -9,6 +9,7 @@ no communication is needed to rank checkpoints).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -174,7 +175,9 @@ class Trainer:
             if old_mc.num_candidates != self.mc.num_candidates or len(old_cand) != self.mc.num_candidates:
                 raise ValueError(f"run folder {self.run_dir} was trained with {len(old_cand)} "
                                  f"candidates; this configuration has {self.mc.num_candidates}")
-            if old_mc != self.mc:
+            # The conv lowering changes how the same weights are computed, not the weights: a
+            # run may resume under another one.
+            if dataclasses.replace(old_mc, conv3d=self.mc.conv3d) != self.mc:
                 raise ValueError(f"run folder {self.run_dir} was trained with another network "
                                  f"configuration ({old_mc}); this one is {self.mc}")
             cand = np.asarray(old_cand, np.float64)
