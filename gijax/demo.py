@@ -65,8 +65,9 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     from gijax.baseline.rtss import rtss_predict_sample
     from gijax.candidates import rig_gi_candidates, spacing_gi_candidates
     from gijax.geometry.layouts import builtin_rig
-    from gijax.geometry.panorama import Panorama
+    from gijax.geometry.panorama_frame import panorama_rotation
     from gijax.geometry.rig import scale_rig
+    from gijax.model import model_panorama
     from gijax.predict import predict
     from gijax.render import render_sample
     from gijax.store import load_model
@@ -76,7 +77,8 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     out_dir.mkdir(parents=True, exist_ok=True)
     seed = int(np.random.SeedSequence().entropy % (2**31)) if seed is None else int(seed)
     net, config, train_cand = load_model(model)
-    pano = Panorama.hemisphere(*config.output_hw)
+    # The paper's rigs look along one axis: the model's own panorama, the hemisphere around it.
+    pano = model_panorama(config)
 
     steps = len(rigs) * 5
     bar = tqdm(total=steps, desc="demo", disable=not progress, unit="step")
@@ -100,7 +102,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
         for label, cand in cands.items():
             bar.set_postfix_str(f"{name}: {config.name} ({label})")
             res, secs = _timed(lambda: predict(net, small, sample["images"], sample["masks"],
-                                               cand))
+                                               cand, pano=pano))
             inv = np.where(res["valid"], res["inv_distance"], np.nan)
             methods.append(MethodResult(f"{config.name} {label}", inv, secs,
                                         _metrics(inv, sample["pano_distance"], cand)))
@@ -108,7 +110,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
                 cloud = (res, small)
             bar.update(1)
         bar.set_postfix_str(f"{name}: {baseline}")
-        res, secs = _timed(lambda: rtss_predict_sample(small, sample, baseline))
+        res, secs = _timed(lambda: rtss_predict_sample(small, sample, baseline, pano=pano))
         methods.append(MethodResult(baseline, np.asarray(res["inv_distance"]), secs,
                                     _metrics(np.asarray(res["inv_distance"]),
                                              sample["pano_distance"], train_cand)))
@@ -119,7 +121,8 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
 
     res, small = cloud
     points, keep = panorama_points(res["distance"], np.asarray(small.reference), pano,
-                                   valid=res["valid"], max_distance=50.0)
+                                   valid=res["valid"], max_distance=50.0,
+                                   rotation=panorama_rotation(small))
     colours = np.clip(res["colour"][keep] * 255.0 + 0.5, 0, 255).astype(np.uint8)
     write_ply(str(out_dir / "points.ply"), points, colours)
     _figure(out_dir / "demo.png", panels, train_cand)

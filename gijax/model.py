@@ -18,7 +18,10 @@ Shapes for one call (B samples, N cameras, D candidates; paper size in brackets,
   resolution or any other (the release feeds masks at the feature resolution): mask sweep
   coordinates are rescaled to the mask's own size;
 * features (B, N, Hs/4, Ws/4, C) [128 x 512 x 16], one extractor shared by all cameras;
-* sweep grids (N, D, h, w, 2) feature-map pixels (col, row) over the rig hemisphere [80 x 320];
+* sweep grids (N, D, h, w, 2) feature-map pixels (col, row) over the rig panorama [80 x 320 for
+  the hemisphere], oriented by the rig's panorama frame
+  (:mod:`gijax.geometry.panorama_frame`); any panorama whose cost grid halves three times runs
+  (:func:`model_panorama`: the model's own coverage or the other one);
   features and masks are sampled there by ``config.sweep_boundary``;
 * cost volume (B, D, h, w, unet_in) [48 concat / 16 variance], U-Net logits (B, D, h, w);
 * outputs at (H, W) = 2 (h, w) [160 x 640]: inverse distance (1/m), distance (m), probabilities
@@ -40,6 +43,7 @@ import numpy as np
 from flax import nnx
 
 from gijax.geometry.panorama import Panorama
+from gijax.geometry.panorama_frame import coverage_of, panorama_of
 from gijax.geometry.rig import Rig
 from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_cost_volume,
                       make_unet, regress)
@@ -78,22 +82,64 @@ jax.tree_util.register_dataclass(
     meta_fields=[])
 
 
-def sweep_grids(rig: Rig, candidates: Array, config: ModelConfig) -> tuple[Array, Array]:
+def model_panorama(config: ModelConfig, coverage: str | None = None) -> Panorama:
+    """The output panorama of ``config`` for ``coverage`` ('hemisphere' or 'sphere'; None: the
+    coverage it was trained on). Its own coverage is ``config.output_hw``; the other one keeps
+    the angular resolution (the sphere has twice the hemisphere's rows)."""
+    coverage = coverage or config.panorama
+    h, w = config.output_hw
+    hemi_hw = (h // 2, w) if config.panorama == "sphere" else (h, w)
+    pano = panorama_of(coverage, hemi_hw)
+    _check_output_panorama(config, pano)
+    return pano
+
+
+def cost_panorama(pano: Panorama) -> Panorama:
+    """The cost-volume panorama of an output panorama: the same latitudes at half the size."""
+    return Panorama(pano.height // 2, pano.width // 2, pano.lat_min, pano.lat_max)
+
+
+def _check_output_panorama(config: ModelConfig, pano: Panorama) -> None:
+    h, w = pano.shape
+    if h % 16 or w % 16:
+        raise ValueError(f"model {config.name!r}: an output panorama of {h} x {w} cannot run; "
+                         f"both sides must be divisible by 16 (the cost volume is half the "
+                         f"output and the U-Net halves it three times)")
+
+
+def sweep_grids(rig: Rig, candidates: Array, config: ModelConfig,
+                pano: Panorama | None = None) -> tuple[Array, Array]:
     """(N, D, h, w, 2) feature-map pixels and (N, D, h, w) validity of the sweep of ``rig`` at
-    ``candidates`` (D,) metres, for ``config``'s feature and cost-volume sizes."""
-    return sweep_grid(rig, candidates, Panorama.hemisphere(*config.cost_hw),
+    ``candidates`` (D,) metres, for ``config``'s feature size and the cost volume of the output
+    panorama ``pano`` (default :func:`model_panorama`), oriented by the rig's panorama frame."""
+    pano = model_panorama(config) if pano is None else pano
+    _check_output_panorama(config, pano)
+    return sweep_grid(rig, candidates, cost_panorama(pano),
                       Panorama.hemisphere(*config.feature_hw))
 
 
-def make_grids(rig: Rig, candidates: Array, config: ModelConfig) -> Grids:
+def make_grids(rig: Rig, candidates: Array, config: ModelConfig,
+               pano: Panorama | None = None) -> Grids:
     """Every grid the network needs for ``rig`` (at the model's image size, i.e. intrinsics
-    already scaled by ``config.image_scale``) and ``candidates`` (D,) metres. Pure and
-    traceable: evaluated once for a fixed rig, or inside jit when the rig is an input."""
+    already scaled by ``config.image_scale``), ``candidates`` (D,) metres and the output
+    panorama ``pano`` (static; default :func:`model_panorama`, the coverage the model was
+    trained on). Pure and traceable: evaluated once for a fixed rig, or inside jit when the
+    rig is an input."""
     check_candidates(config, candidates)
     candidates = jnp.asarray(candidates, rig.translations.dtype)
     sur_px, sur_ok = surrogate_maps(rig, Panorama.hemisphere(*config.surrogate_hw))
-    px, ok = sweep_grids(rig, candidates, config)
+    px, ok = sweep_grids(rig, candidates, config, pano)
     return Grids(sur_px, sur_ok, px, ok, candidates)
+
+
+def coverage_note(config: ModelConfig, pano: Panorama) -> str | None:
+    """A warning when ``pano`` covers another part of the sphere than ``config`` was trained
+    on (the network then sees latitudes it never saw), else None."""
+    asked = coverage_of(pano)
+    if asked == config.panorama:
+        return None
+    return (f"warning: model {config.name!r} was trained on the {config.panorama}; it is run "
+            f"on the {asked} here, whose other latitudes it has never seen")
 
 
 def check_candidates(config: ModelConfig, candidates) -> None:
@@ -151,14 +197,15 @@ def forward_surrogates(model: "OmniStereoNet", surrogates: Array, masks: Array,
     sampled, cam_valid = sweep(feats, masks, grids, cfg.sweep_boundary)
     volume = model.cost_volume(sampled, cam_valid.astype(dtype))
     logits = model.unet(volume)
-    out = dict(regress(logits, grids.candidates.astype(dtype), cfg.output_hw))
+    # The output is twice the cost grid, whichever panorama the grids cover.
+    h, w = logits.shape[2:4]
+    out = dict(regress(logits, grids.candidates.astype(dtype), (2 * h, 2 * w)))
     out["logits"] = logits
     needed = 2 if cfg.cost_volume == "variance" else n
     # Float reductions: TensorRT reduces float tensors only (no integer / boolean ReduceSum).
     seen_by = jnp.min(jnp.sum(cam_valid.astype(dtype), axis=1), axis=1)   # (B, h, w)
     cell_ok = seen_by >= needed
-    fy, fx = cfg.output_hw[0] // cfg.cost_hw[0], cfg.output_hw[1] // cfg.cost_hw[1]
-    out["valid"] = jnp.repeat(jnp.repeat(cell_ok, fy, axis=1), fx, axis=2)
+    out["valid"] = jnp.repeat(jnp.repeat(cell_ok, 2, axis=1), 2, axis=2)
     return out
 
 
@@ -214,16 +261,18 @@ class OmniStereoNet(nnx.Module):
         self.cost_volume = make_cost_volume(config, rngs)
         self.unet = make_unet(config, rngs)
 
-    def __call__(self, surrogates: Array, masks: Array, rig: Rig, candidates: Array) -> dict:
+    def __call__(self, surrogates: Array, masks: Array, rig: Rig, candidates: Array,
+                 pano: Panorama | None = None) -> dict:
         """surrogates (B, N, Hs, Ws, 3) in [0, 1], masks (B, N, Hm, Wm), candidates (D,) metres:
-        :func:`forward_surrogates` with the sweep grids of ``rig`` computed here."""
+        :func:`forward_surrogates` with the sweep grids of ``rig`` computed here for the output
+        panorama ``pano`` (static; default :func:`model_panorama`)."""
         check_candidates(self.config, candidates)
         found = tuple(np.shape(surrogates))[1:2]
         if found != (rig.num_cameras,):
             raise ValueError(f"the rig has {rig.num_cameras} cameras but "
                              f"{found[0] if found else 'no'} surrogate images were given")
         candidates = jnp.asarray(candidates, surrogates.dtype)
-        px, ok = sweep_grids(rig, candidates, self.config)
+        px, ok = sweep_grids(rig, candidates, self.config, pano)
         grids = Grids(None, None, px, ok, candidates)
         return forward_surrogates(self, surrogates, masks, grids)
 

@@ -22,6 +22,7 @@ The in-memory result of :func:`predict` keeps the network's raw values there, ma
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -33,10 +34,13 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
-from gijax.geometry.panorama import Panorama, ray_grid
-from gijax.geometry.rig import Rig, project_rig_points, scale_rig
+from gijax.geometry.panorama import Panorama
+from gijax.geometry.panorama_frame import coverage_of, panorama_rays, panorama_rotation
+from gijax.data.images import fit_images
+from gijax.geometry.rig import Rig, project_rig_points
 from gijax.io.paths import atomic_path, write_bytes_atomic
-from gijax.model import OmniStereoNet, check_candidates, forward, make_grids
+from gijax.model import (OmniStereoNet, check_candidates, coverage_note, forward, make_grids,
+                         model_panorama)
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
 from gijax.sweep.surrogate import as_float_image, check_images
@@ -44,17 +48,16 @@ from gijax.sweep.surrogate import as_float_image, check_images
 Array = jax.Array
 
 
-@nnx.jit
-def _forward(model: OmniStereoNet, images, masks, rig, candidates):
-    return forward(model, images, masks, make_grids(rig, candidates, model.config))
+@functools.partial(nnx.jit, static_argnames=("pano",))
+def _forward(model: OmniStereoNet, images, masks, rig, candidates, pano: Panorama):
+    return forward(model, images, masks, make_grids(rig, candidates, model.config, pano))
 
 
-@jax.jit
-def _point_colours(rig: Rig, images: Array, distance: Array) -> Array:
+@functools.partial(jax.jit, static_argnames=("pano",))
+def _point_colours(rig: Rig, images: Array, distance: Array, pano: Panorama) -> Array:
     """(H, W, 3) mean colour of each predicted point over the cameras that see it (projection
     valid and inside the rig's masks); 0 where no camera sees it."""
-    pano = Panorama.hemisphere(*distance.shape)
-    points = rig.reference + distance[..., None] * ray_grid(pano, distance.dtype)
+    points = rig.reference + distance[..., None] * panorama_rays(rig, pano, distance.dtype)
     pixels, seen = project_rig_points(rig, points)
     colours, seen = jax.vmap(bilinear_sample)(images, pixels, seen)
     # Averaging rather than taking one camera evens out per-camera exposure and white balance
@@ -65,72 +68,24 @@ def _point_colours(rig: Rig, images: Array, distance: Array) -> Array:
     return jnp.where(count > 0, total / jnp.maximum(count, 1.0), 0.0)
 
 
-def point_colours(rig: Rig, images, masks, distance) -> np.ndarray:
+def point_colours(rig: Rig, images, masks, distance, pano: Panorama | None = None) -> np.ndarray:
     """(H, W, 3) colour in [0, 1] of each point of a distance panorama (any method's): the mean
     of its bilinear samples in every camera that sees it, 0 where none does.
 
     ``images`` (N, h, w, 3) at the rig's size, ``masks`` (N, h, w) in place of the rig's own
     (None keeps them). Points without a distance (NaN or not positive) are coloured as if 1 m
-    away; every written file leaves them out or black.
+    away; every written file leaves them out or black. ``pano`` is the distance map's panorama
+    (default: the hemisphere of its size), oriented by the rig's panorama frame.
     """
     if masks is not None:
         rig = rig.replace(masks=tuple(jnp.asarray(m, jnp.float32) for m in masks))
     distance = np.asarray(distance, np.float32)
     distance = np.where(np.isfinite(distance) & (distance > 0), distance, 1.0)
-    return np.asarray(_point_colours(rig, as_float_image(images), jnp.asarray(distance)))
-
-
-def _size_text(hw) -> str:
-    return f"{hw[0]} x {hw[1]}"
-
-
-def fit_images(rig: Rig, images, masks=None, size: tuple[int, int] | None = None,
-               log=None) -> tuple[Rig, np.ndarray, np.ndarray | None]:
-    """The one image-size policy of every method: images of another size than the method works
-    at are resized when their aspect ratio is the rig's, and refused otherwise.
-
-    Args:
-      rig: the rig at its calibrated image size (cameras of one size).
-      images: (N, h, w, C) images, all of one size; ``masks`` (N, h, w) or None.
-      size: (height, width) the method works at (the learned model: the rig's size times its
-        ``image_scale``), or None to work at the images' own size (the classical baseline
-        resamples every image to its matching view anyway, so only the lens is rescaled).
-      log: called with a one-line note when anything is resized or rescaled.
-
-    Returns the rig at the working size, and the images and masks at that size (float32 masks
-    where resized). Raises ValueError naming the expected and found sizes when the aspect
-    ratio differs (a crop or another camera, not a resize).
-    """
-    images = np.asarray(images)
-    cam = rig.cameras[0]
-    rig_hw = (cam.height, cam.width)
-    found = tuple(int(x) for x in images.shape[1:3])
-    wanted = found if size is None else tuple(int(x) for x in size)
-    # Same aspect within the one pixel that rounding a scaled size can lose.
-    if abs(found[0] - rig_hw[0] * found[1] / rig_hw[1]) > 1.0:
-        need = "" if size is None else f"; the model works at {_size_text(wanted)}"
-        raise ValueError(f"images must be {_size_text(rig_hw)} (the rig's size{need}) or "
-                         f"another size of the same aspect ratio; found {_size_text(found)}")
-    factor = wanted[1] / rig_hw[1]
-    run_rig = rig if wanted == rig_hw else scale_rig(rig, factor)
-    run_hw = (run_rig.cameras[0].height, run_rig.cameras[0].width)
-    if run_hw != wanted:
-        raise ValueError(f"the rig's {_size_text(rig_hw)} cameras scaled by {factor:g} are "
-                         f"{_size_text(run_hw)}, not the {_size_text(wanted)} asked for")
-    if found != run_hw:
-        # Shrinking averages (INTER_AREA) so fine texture does not alias; enlarging
-        # interpolates.
-        inter = cv2.INTER_AREA if found[1] > run_hw[1] else cv2.INTER_LINEAR
-        images = _resize(images, run_hw, inter)
-        if masks is not None:
-            masks = _resize(np.asarray(masks, np.float32), run_hw, inter)
-        if log is not None:
-            log(f"note: images {_size_text(found)} resized to {_size_text(run_hw)} (the rig's "
-                f"{_size_text(rig_hw)} scaled by {factor:g}) for the model")
-    elif run_rig is not rig and log is not None:
-        log(f"note: images are {_size_text(found)}; the rig's {_size_text(rig_hw)} lenses are "
-            f"rescaled by {factor:g} to match them")
-    return run_rig, images, masks
+    pano = pano or Panorama.hemisphere(*distance.shape)
+    if pano.shape != distance.shape:
+        raise ValueError(f"distance has shape {distance.shape} but the panorama is "
+                         f"{pano.height} x {pano.width}")
+    return np.asarray(_point_colours(rig, as_float_image(images), jnp.asarray(distance), pano))
 
 
 def model_size(config: ModelConfig, rig: Rig) -> tuple[int, int]:
@@ -141,13 +96,8 @@ def model_size(config: ModelConfig, rig: Rig) -> tuple[int, int]:
             int(round(cam.width * config.image_scale)))
 
 
-def _resize(images: np.ndarray, hw: tuple[int, int], interpolation: int) -> np.ndarray:
-    out = [cv2.resize(np.ascontiguousarray(im), (hw[1], hw[0]), interpolation=interpolation)
-           for im in images]
-    return np.stack([o.reshape(hw[0], hw[1], *im.shape[2:]) for o, im in zip(out, images)])
-
-
-def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None) -> dict:
+def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
+            pano: Panorama | None = None) -> dict:
     """Distance panorama of one sample.
 
     Args:
@@ -158,12 +108,16 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None)
         (:func:`fit_images`).
       masks: (N, h, w) validity masks (1 = sees the world) or None for the rig's own masks.
       candidates: (D,) ascending distances in metres, D = the model's candidate count.
-      log: receives the note when the images are resized.
+      log: receives the note when the images are resized, and the warning when ``pano``
+        covers another part of the sphere than the model was trained on.
+      pano: the output panorama (static), oriented by the rig's panorama frame; default the
+        model's own (:func:`gijax.model.model_panorama`).
 
     Returns:
       numpy dict: ``inv_distance`` (H, W) 1/m, ``distance`` (H, W) m, ``prob`` (D, H, W),
       ``entropy`` (H, W) nats, ``valid`` (H, W) bool, ``colour`` (H, W, 3) in [0, 1] (the
-      image colour at each predicted point) and ``candidates`` (D,).
+      image colour at each predicted point), ``candidates`` (D,) and ``panorama`` (the
+      :class:`Panorama` of those maps).
     """
     config = model.config
     images = np.asarray(images)
@@ -176,6 +130,11 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None)
     if images.shape[-1] != 3:
         raise ValueError(f"images must have 3 (RGB) channels; found {images.shape[-1]}")
     check_candidates(config, candidates)
+    pano = model_panorama(config) if pano is None else pano
+    model_panorama(config, coverage_of(pano))  # sizes the network can run
+    note = coverage_note(config, pano)
+    if note and log is not None:
+        log(note)
     if config.cost_volume == "concat" and rig.num_cameras != config.num_cameras:
         raise ValueError(f"model {config.name!r} concatenates exactly {config.num_cameras} cameras;"
                          f" the rig has {rig.num_cameras}")
@@ -194,10 +153,12 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None)
     view = nnx.merge(graphdef, state)
     view.eval()
     cand = jnp.asarray(candidates, jnp.float32)
-    out = _forward(view, images[None], jnp.asarray(masks, jnp.float32)[None], run_rig, cand)
+    out = _forward(view, images[None], jnp.asarray(masks, jnp.float32)[None], run_rig, cand,
+                   pano)
     result = {k: np.asarray(v[0]) for k, v in out.items()}
-    result["colour"] = point_colours(run_rig, images, masks, out["distance"][0])
+    result["colour"] = point_colours(run_rig, images, masks, out["distance"][0], pano)
     result["candidates"] = np.asarray(candidates, np.float64)
+    result["panorama"] = pano
     return result
 
 
@@ -282,13 +243,20 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     write_bytes_atomic(Path(paths["rgb_png"]),
                        cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))[1].tobytes())
     limit = d_max if max_point_distance is None else max_point_distance
-    points, keep = panorama_points(distance, np.asarray(rig.reference), valid=valid,
-                                   max_distance=limit)
+    pano = result.get("panorama") or Panorama.hemisphere(*distance.shape)
+    points, keep = panorama_points(distance, np.asarray(rig.reference), pano, valid=valid,
+                                   max_distance=limit, rotation=panorama_rotation(rig))
     colours = np.clip(np.asarray(result["colour"])[keep] * 255.0 + 0.5, 0, 255).astype(np.uint8)
     paths["points"] = write_ply(str(out / "points.ply"), points, colours)
     meta = {"title": title, "candidates_m": cand.tolist(), "shape": list(distance.shape),
             "valid_fraction": float(valid.mean()), "valid_pixels": int(valid.sum()),
-            "invalid_pixels": INVALID, "points": int(len(points))}
+            "invalid_pixels": INVALID, "points": int(len(points)),
+            "panorama": {"coverage": coverage_of(pano),
+                         "latitude_deg": [math.degrees(pano.lat_min), math.degrees(pano.lat_max)],
+                         "longitude": "column grows to the right seen from the centre, pole "
+                                      "(row 0) up; 0 deg in the middle column",
+                         "rotation_panorama_to_rig": np.asarray(panorama_rotation(rig),
+                                                                np.float64).tolist()}}
     write_bytes_atomic(out / "prediction.json", json.dumps(meta, indent=2).encode())
     paths["meta"] = str(out / "prediction.json")
     return paths

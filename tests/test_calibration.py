@@ -104,6 +104,8 @@ def test_basalt_import_values_and_poses(tmp_path):
                                atol=1e-7)
     np.testing.assert_allclose(np.asarray(rig.translations[1]), [0.3, 0.0, 0.0], atol=1e-7)
     np.testing.assert_allclose(np.asarray(rig.translations[0]), 0.0, atol=0)
+    # The panorama is centred between the cameras, not on camera 0.
+    np.testing.assert_allclose(np.asarray(rig.reference), [0.15, 0.0, 0.0], atol=1e-7)
 
 
 def test_gijax_yaml_round_trip(tmp_path):

@@ -374,3 +374,24 @@ def test_predict_cli_onnx_backend_matches_the_predictor(setup, tmp_path):
     want = np.where(direct["valid"], direct["distance"], np.nan)
     np.testing.assert_allclose(written, want, rtol=1e-5)
     assert (out / "points.ply").stat().st_size > 100
+
+
+def test_onnx_predictor_follows_the_image_size_policy(setup):
+    """Images of the rig's aspect at any size are resized to the exported size, with a note;
+    another aspect is refused (the policy of the JAX model and the baseline)."""
+    import cv2
+
+    s = setup
+    pred = OnnxPredictor(s["baked"].path, providers=["CPUExecutionProvider"])
+    small = np.asarray(s["images"][0], np.float32)               # the exported 128 x 128
+    big = np.stack([cv2.resize(im, (256, 256), interpolation=cv2.INTER_LINEAR) for im in small])
+    notes = []
+    out = pred.predict(s["rig"], big, None, log=notes.append)
+    assert any("resized to 128 x 128" in n for n in notes), notes
+    assert out["inv_distance"].shape == TINY.output_hw
+    assert out["panorama"].shape == TINY.output_hw
+    direct = pred.predict(s["rig"], small, None)
+    # Shrinking a 2x bilinear enlargement by area averaging nearly restores the images.
+    assert np.nanmean(np.abs(out["inv_distance"] - direct["inv_distance"])) < 0.05
+    with pytest.raises(ValueError, match="same aspect ratio"):
+        pred.predict(s["rig"], big[:, :200], None)

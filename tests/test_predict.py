@@ -38,7 +38,9 @@ def np_rays(h, w):
     lon = -math.pi + 2 * math.pi * (np.arange(w) + 0.5) / w
     polar = (math.pi / 2) * (np.arange(h) + 0.5) / h
     lon, polar = np.meshgrid(lon, polar)
-    return np.stack([np.sin(polar) * np.cos(lon), np.sin(polar) * np.sin(lon), np.cos(polar)], -1)
+    # Longitude grows towards -y (the common equirectangular layout, docs/geometry.md).
+    return np.stack([np.sin(polar) * np.cos(lon), -np.sin(polar) * np.sin(lon), np.cos(polar)],
+                    -1)
 
 
 def read_ply(path):

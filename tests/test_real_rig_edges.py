@@ -111,7 +111,7 @@ def test_colour_panorama_is_the_mean_over_the_cameras_that_see_each_point():
     lon = -math.pi + 2 * math.pi * (np.arange(w) + 0.5) / w
     polar = (math.pi / 2) * (np.arange(h) + 0.5) / h
     lon, polar = np.meshgrid(lon, polar)
-    points = 2.0 * np.stack([np.sin(polar) * np.cos(lon), np.sin(polar) * np.sin(lon),
+    points = 2.0 * np.stack([np.sin(polar) * np.cos(lon), -np.sin(polar) * np.sin(lon),
                              np.cos(polar)], -1)
     angles = []
     for i in range(3):

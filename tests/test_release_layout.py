@@ -136,7 +136,8 @@ def g_dir(row: int, col: int, pano: Panorama = PANO) -> np.ndarray:
     """gijax panorama pixel centre direction, written out from docs/geometry conventions."""
     lon = -math.pi + (col + 0.5) * 2 * math.pi / pano.width
     theta = pano.lat_min + (row + 0.5) * (pano.lat_max - pano.lat_min) / pano.height + math.pi / 2
-    return np.array([math.sin(theta) * math.cos(lon), math.sin(theta) * math.sin(lon),
+    # Longitude grows towards -y: the common layout, column grows to the right.
+    return np.array([math.sin(theta) * math.cos(lon), -math.sin(theta) * math.sin(lon),
                      math.cos(theta)])
 
 

@@ -62,7 +62,9 @@ def _pano_dirs64(pano: Panorama) -> np.ndarray:
     lon, lat = np.meshgrid(-np.pi + 2 * np.pi * col,
                            pano.lat_min + (pano.lat_max - pano.lat_min) * row)
     theta = lat + np.pi / 2
-    return np.stack([np.sin(theta) * np.cos(lon), np.sin(theta) * np.sin(lon), np.cos(theta)], -1)
+    # Longitude grows towards -y (the common equirectangular layout, docs/geometry.md).
+    return np.stack([np.sin(theta) * np.cos(lon), -np.sin(theta) * np.sin(lon), np.cos(theta)],
+                    -1)
 
 
 # ---------------------------------------------------------------------------------------------

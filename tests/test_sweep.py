@@ -71,7 +71,9 @@ def np_pano_dirs(h, w):
     lat = -math.pi / 2 + (math.pi / 2) * (np.arange(h) + 0.5) / h
     lon, lat = np.meshgrid(lon, lat)
     theta = lat + math.pi / 2
-    return np.stack([np.sin(theta) * np.cos(lon), np.sin(theta) * np.sin(lon), np.cos(theta)], -1)
+    # Longitude grows towards -y (the common equirectangular layout, docs/geometry.md).
+    return np.stack([np.sin(theta) * np.cos(lon), -np.sin(theta) * np.sin(lon), np.cos(theta)],
+                    -1)
 
 
 def test_sweep_grid_matches_numpy_rederivation():
@@ -87,7 +89,7 @@ def test_sweep_grid_matches_numpy_rederivation():
     for i in range(3):
         pts = REF + cand[:, None, None, None] * rays[None]
         pc = (pts - TRANS[i]) @ ROTS[i]  # R^T (p - t), row-vector form
-        lon = np.arctan2(pc[..., 1], pc[..., 0])
+        lon = np.arctan2(-pc[..., 1], pc[..., 0])
         polar = np.arctan2(np.hypot(pc[..., 0], pc[..., 1]), pc[..., 2])
         col = (lon + math.pi) / (2 * math.pi) * 128 - 0.5
         row = (polar / (math.pi / 2)) * 32 - 0.5

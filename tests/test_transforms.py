@@ -40,6 +40,7 @@ from gijax.baseline import camera_select, cost_filter, matching_cost, rtss, stit
 from gijax.candidates import closed_form, parallax, rig_aware, spacing, uniformity
 from gijax.design import constraints, optimize, spec as design_spec
 from gijax.geometry import cameras, field_of_view, occluder, panorama, rig as rig_lib, rotations
+from gijax.geometry import panorama_frame
 from gijax.geometry.panorama import Panorama
 from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
 from gijax.sweep import grid, sample, surrogate
@@ -115,6 +116,12 @@ NOT_TRACED = {
     "gijax.geometry.rig.describe_rig": "text report",
     "gijax.geometry.field_of_view.describe_field_of_view": "text report",
     "gijax.geometry.rig.is_homogeneous": "structural query: a Python bool from static fields",
+    "gijax.geometry.panorama_frame.choose_panorama": "NumPy choice from concrete poses",
+    "gijax.geometry.panorama_frame.estimate_up": "NumPy report of concrete poses",
+    "gijax.geometry.panorama_frame.parse_up": "command-line text to NumPy",
+    "gijax.geometry.panorama_frame.describe_choice": "text report",
+    "gijax.geometry.panorama_frame.panorama_of": "a static panorama from static sizes",
+    "gijax.geometry.panorama_frame.coverage_of": "a name from a static panorama",
     "gijax.design.constraints.constraint_report": "plain-Python summary",
     "gijax.design.figure.plot_design": "writes a PNG",
     "gijax.design.optimize.terms_to_python": "floats and lists for reports",
@@ -449,6 +456,45 @@ def _direction_to_pixel(seed):
       diff=(0,))
 def _pixel_to_direction(seed):
     return (jnp.asarray([[0.5 + seed, 0.2], [3.1, 1.4]], F64),)
+
+
+def framed_rig(seed):
+    """A small rig whose panorama frame is turned away from its +z axis."""
+    turn = rotations.axis_angle_to_matrix(jnp.asarray([0.4, -0.3 + 0.1 * seed, 0.9], F64))
+    return panorama_frame.with_panorama_rotation(small_rig(seed), turn)
+
+
+@case(panorama_frame.panorama_rotation, diff=(0,))
+def _panorama_rotation(seed):
+    return (framed_rig(seed),)
+
+
+@case(panorama_frame.panorama_rays, call=lambda r: panorama_frame.panorama_rays(r, PANO),
+      diff=(0,))
+def _panorama_rays(seed):
+    return (framed_rig(seed),)
+
+
+@case(panorama_frame.to_panorama_frame, diff=(0, 1))
+def _to_panorama_frame(seed):
+    return framed_rig(seed), points(seed, 3)
+
+
+@case(panorama_frame.panorama_pixels,
+      call=lambda r, d: panorama_frame.panorama_pixels(r, PANO, d), diff=(0, 1))
+def _panorama_pixels(seed):
+    return framed_rig(seed), points(seed, 3)
+
+
+@case(panorama_frame.frame_from_up, diff=(0, 1))
+def _frame_from_up(seed):
+    return jnp.asarray([0.1, -0.2 + seed, 1.3], F64), jnp.asarray([1.0, 0.3, -0.2], F64)
+
+
+@case(panorama_frame.with_panorama_rotation, diff=(0, 1))
+def _with_panorama_rotation(seed):
+    return small_rig(seed), rotations.axis_angle_to_matrix(jnp.asarray([0.2, 0.5, -0.1 * seed],
+                                                                       F64))
 
 
 @case(rig_lib.make_rig, call=lambda r, t: rig_lib.make_rig([lens(0), lens(0)], r, t, dtype=F64),

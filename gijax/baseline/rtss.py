@@ -326,12 +326,12 @@ def rtss_predict(rig: Rig, images, masks, candidates, pano: Panorama = Panorama.
 
 
 def rtss_predict_sample(rig: Rig, sample: dict, preset_name: str = "RS-E32",
-                        candidates=None, **overrides) -> dict:
+                        candidates=None, pano: Panorama | None = None, **overrides) -> dict:
     """Run a preset on one rendered or loaded sample (a dict like ``render_sample``'s output).
 
     ``sample`` holds ``images`` (Ncam, h, w, 3) uint8 or float, optionally ``masks`` and
-    ``pano_distance`` (Hp, Wp), whose shape sets the output panorama (hemisphere; 160 x 640
-    when absent). The matching size defaults to the smaller of the preset's size and the
+    ``pano_distance`` (Hp, Wp), whose shape sets the output panorama when ``pano`` is None
+    (hemisphere; 160 x 640 when absent). The panorama is oriented by the rig's panorama frame. The matching size defaults to the smaller of the preset's size and the
     cameras' image width. ``overrides`` replace preset fields; ``candidates`` replaces the
     preset's list. Returns numpy arrays (see :func:`rtss_predict`): an eager edge, not traced.
     """
@@ -343,8 +343,9 @@ def rtss_predict_sample(rig: Rig, sample: dict, preset_name: str = "RS-E32",
     config = config.replace(**overrides)
     if candidates is None:
         candidates = preset_candidates(rig, config)
-    shape = np.shape(sample["pano_distance"]) if "pano_distance" in sample else (160, 640)
-    pano = Panorama.hemisphere(int(shape[0]), int(shape[1]))
+    if pano is None:
+        shape = np.shape(sample["pano_distance"]) if "pano_distance" in sample else (160, 640)
+        pano = Panorama.hemisphere(int(shape[0]), int(shape[1]))
     masks = sample.get("masks")
     out = rtss_predict(rig, sample["images"], masks, candidates, pano, config)
     return {k: np.asarray(v) for k, v in out.items()}

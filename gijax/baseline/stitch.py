@@ -33,7 +33,8 @@ import jax.numpy as jnp
 from gijax.baseline.camera_select import camera_at
 from gijax.baseline.views import MatchView, sample_mask_nearest, view_pixels
 from gijax.geometry import cameras as cam_lib
-from gijax.geometry.panorama import Panorama, ray_grid
+from gijax.geometry.panorama import Panorama
+from gijax.geometry.panorama_frame import panorama_rays
 from gijax.geometry.rig import Rig, map_cameras, rig_to_camera
 from gijax.numerics import safe_denominator, safe_norm
 from gijax.sampling import bilinear_sample
@@ -48,7 +49,7 @@ def pair_visibility(rig: Rig, masks: Array, candidates: Array, pano: Panorama) -
 
     ``masks`` (N, h, w) are the cameras' raw-image masks (1 = valid).
     """
-    dirs = ray_grid(pano, candidates.dtype)
+    dirs = panorama_rays(rig, pano, candidates.dtype)
     pts = rig.reference + candidates[:, None, None, None] * dirs[None]
 
     def one(cam, rot, trans, _, mask):
@@ -105,7 +106,7 @@ def resample_to_panorama(rig: Rig, view: MatchView, refs: Sequence[int], inv_map
     Returns dict of (R, Hp, Wp) arrays: ``inv_distance`` (1/m from the reference point, 0 where
     not found), ``weight`` (confidence, 0 where not found) and ``valid``.
     """
-    dirs = ray_grid(pano, inverse_samples.dtype)
+    dirs = panorama_rays(rig, pano, inverse_samples.dtype)
     stacked = isinstance(inv_maps, jax.Array) and inv_maps.ndim == 3
 
     def pack(inv, val, w):

@@ -88,6 +88,7 @@ from gijax.candidates.closed_form import _float_dtype
 from gijax.candidates.validation import (check_count, check_range, guard_candidates,
                                          is_concrete, require)
 from gijax.geometry.panorama import Panorama
+from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, map_cameras, project_rig_points
 from gijax.numerics import guard_floor, safe_denominator, safe_div, unit
 
@@ -160,7 +161,8 @@ def as_float_rig(rig: Rig) -> Rig:
     cast = lambda x: jnp.asarray(x, dt) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating) else x
     return rig.replace(cameras=jax.tree_util.tree_map(cast, rig.cameras),
                        rotations=cast(rig.rotations), translations=cast(rig.translations),
-                       reference=cast(rig.reference))
+                       reference=cast(rig.reference),
+                       panorama_rotation=cast(panorama_rotation(rig)))
 
 
 @functools.partial(jax.jit, static_argnames=("pano", "measure", "samples"))
@@ -175,6 +177,8 @@ def rig_terms(rig: Rig, d_min, d_max, pano: Panorama = DEFAULT_PANO, measure: st
     dt = rig.translations.dtype
     if rays is None:
         rays, solid = par.panorama_rays(pano, dt)
+        # The panorama's rays, oriented by the rig's panorama frame.
+        rays = rays @ panorama_rotation(rig).astype(dt).T
     else:
         rays = unit(jnp.asarray(rays, dt).reshape(-1, 3))
         solid = jnp.full(rays.shape[:1], 1.0 / rays.shape[0], dt)

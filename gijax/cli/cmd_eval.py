@@ -82,7 +82,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _net_predictor(model, rig, candidates):
+def _net_predictor(model, rig, candidates, pano):
     import jax
     import jax.numpy as jnp
     from flax import nnx
@@ -91,7 +91,7 @@ def _net_predictor(model, rig, candidates):
 
     @jax.jit
     def forward(state, images, masks, rig, cand):
-        return nnx.merge(graphdef, state)(images, masks, rig, cand)["inv_distance"]
+        return nnx.merge(graphdef, state)(images, masks, rig, cand, pano)["inv_distance"]
 
     cand = jnp.asarray(candidates, jnp.float32)
     from gijax.train.trainer import model_rig
@@ -141,8 +141,7 @@ def _rtss_setup(args, rig, reader):
     """The rig at the dataset's image size, the RTSS configuration, its candidates with their
     description, and the output panorama (the dataset's label panorama)."""
     from gijax.baseline.rtss import choose_candidates, get_rtss_preset
-    from gijax.geometry.panorama import Panorama
-    from gijax.predict import fit_images
+    from gijax.data.images import fit_images
 
     if args.ckpt:
         raise ValueError("--method rtss evaluates the classical baseline, which uses no model; "
@@ -154,7 +153,7 @@ def _rtss_setup(args, rig, reader):
                      log=lambda line: print(line, file=sys.stderr))[0]
     config = config.replace(match_size=min(config.match_size, rig.cameras[0].width))
     cand, how = choose_candidates(args.candidates, rig, config)
-    pano = Panorama.hemisphere(*np.shape(first["pano_distance"]))
+    pano = reader.pano
     return rig, config, cand, how, pano
 
 
@@ -183,13 +182,20 @@ def run(args) -> int:
     if args.rig:
         from gijax.io.rigfile import load_rig
 
-        rig = load_rig(args.rig)
+        # The labels fix the panorama frame: the dataset's, whatever the rig file says.
+        rig = load_rig(args.rig).replace(panorama_rotation=reader.rig.panorama_rotation)
     else:
         rig = reader.rig
     if args.method == "net":
         cand, how = resolve_candidates(args.candidates or "train", rig, mc.num_candidates,
                                        mc.d_min, mc.d_max, train=train_cand)
-        predict = _net_predictor(model, rig, cand)
+        from gijax.model import coverage_note
+
+        # The network runs on the labels' panorama (frame, coverage and size).
+        note = coverage_note(mc, reader.pano)
+        if note:
+            print(note, file=sys.stderr)
+        predict = _net_predictor(model, rig, cand, reader.pano)
         batches = validation_batches(reader, rig, args.batch, mc.surrogate_hw, 0)
         name = mc.name
     else:

@@ -21,7 +21,7 @@ compared with JAX (inverse distance within 1e-4 1/m), and a TensorRT compatibili
 
 def register(subparsers) -> None:
     from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
-    from gijax.cli.options import CKPT_HELP
+    from gijax.cli.options import CKPT_HELP, add_panorama_options
 
     p = subparsers.add_parser("export", help=HELP, description=DESCRIPTION,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -44,6 +44,7 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.add_argument("--no-validate", action="store_true",
                    help="skip the onnxruntime-vs-JAX comparison on a rendered sample")
+    add_panorama_options(p, "the model's output size")
     p.set_defaults(func=run)
 
 
@@ -58,9 +59,16 @@ def run(args) -> int:
     rig = load_rig(args.rig)
     from gijax.store import model_or_untrained
 
+    from gijax.cli.options import panorama_from_args
+    from gijax.model import coverage_note, model_panorama
+
     model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
     if not args.ckpt:
         label += " - for testing only"
+    rig, pano = panorama_from_args(args, rig, model_panorama(config, "hemisphere").shape)
+    note = coverage_note(config, pano)
+    if note:
+        print(note)
     candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
                                          config.d_min, config.d_max, train=train_cand,
                                          kind=config.candidates)
@@ -68,7 +76,7 @@ def run(args) -> int:
           f"{np.round(candidates, 3).tolist()} m")
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,
                          dynamic_batch=args.dynamic_batch, rig_as_input=args.rig_as_input,
-                         extra_metadata={"source": label, "rig": str(args.rig)})
+                         extra_metadata={"source": label, "rig": str(args.rig)}, pano=pano)
     print(f"wrote {result.path} ({result.metadata['mode']})")
     for name, shape in result.inputs.items():
         print(f"  input  {name:13s} {shape}")

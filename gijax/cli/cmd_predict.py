@@ -9,8 +9,8 @@ import numpy as np
 
 HELP = "estimate the distance panorama of one set of fisheye images"
 DESCRIPTION = """\
-Run a model on one image per camera and write, under --out: distance.npy (float32 metres,
-160 x 640 at paper size), valid.npy / valid.png (per-pixel validity: True / 255 where a
+Run a model on one image per camera and write, under --out: distance.npy (float32 metres, an
+equirectangular panorama: 160 x 640 for the paper's hemisphere; see the panorama options), valid.npy / valid.png (per-pixel validity: True / 255 where a
 distance was estimated), inverse_distance.png (colour map with a colour bar in metres),
 uncertainty.png (entropy of the learned model's candidate distribution; the classical
 baseline has none and writes no such file), rgb.png (the colour panorama: each pixel the mean
@@ -42,7 +42,7 @@ default candidates are the preset's own list (RS-E32: 32 candidates even in inve
 
 def register(subparsers) -> None:
     from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
-    from gijax.cli.options import CKPT_HELP
+    from gijax.cli.options import CKPT_HELP, add_panorama_options
 
     description = DESCRIPTION.format(
         candidates=textwrap.fill("Candidates (--candidates): " + CANDIDATES_HELP, 95))
@@ -74,6 +74,7 @@ def register(subparsers) -> None:
                         "--method rtss")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
+    add_panorama_options(p, "160x640 (RTSS) or the model's output size")
     p.set_defaults(func=run)
 
 
@@ -122,11 +123,16 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
 
     from gijax.store import model_or_untrained
 
+    from gijax.cli.options import panorama_from_args
+    from gijax.model import model_panorama
+
     model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
+    hemi = model_panorama(config, "hemisphere").shape
+    rig, pano = panorama_from_args(args, rig, hemi)
     candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
                                          config.d_min, config.d_max, train=train_cand,
                                          kind=config.candidates)
-    result = predict(model, rig, images, masks, candidates, log=print)
+    result = predict(model, rig, images, masks, candidates, log=print, pano=pano)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args.out, title)
     return 0
@@ -148,11 +154,15 @@ def _report(result: dict, rig, out: str, title: str) -> None:
 
 
 def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
-    """The classical baseline at the images' own size; the panorama is the paper's 160 x 640."""
+    """The classical baseline at the images' own size; the panorama by default the paper's
+    angular resolution (160 x 640 for the hemisphere)."""
     from gijax.baseline.rtss import choose_candidates, get_rtss_preset, rtss_predict_sample
-    from gijax.predict import fit_images, point_colours
+    from gijax.cli.options import panorama_from_args
+    from gijax.data.images import fit_images
+    from gijax.predict import point_colours
 
     config = get_rtss_preset(args.rtss_preset)
+    rig, pano = panorama_from_args(args, rig, (160, 640))
     rig, images, masks = fit_images(rig, images, masks, None, log=print)
     candidates, how = choose_candidates(args.candidates, rig, config)
     print(f"candidates: {how}; {len(candidates)} from {float(candidates[0]):.3f} to "
@@ -160,7 +170,7 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     sample = {"images": images}
     if masks is not None:
         sample["masks"] = masks
-    result = rtss_predict_sample(rig, sample, args.rtss_preset, candidates=candidates)
+    result = rtss_predict_sample(rig, sample, args.rtss_preset, candidates=candidates, pano=pano)
     valid = np.asarray(result["valid"], bool)
     result = {
         "inv_distance": np.asarray(result["inv_distance"], np.float32),
@@ -169,8 +179,9 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
         # No "entropy": the baseline's winner-take-all has no candidate distribution, and a
         # constant map would read as "certain everywhere".
         "candidates": np.asarray(candidates, np.float64),
+        "panorama": pano,
     }
-    result["colour"] = point_colours(rig, images, masks, result["distance"])
+    result["colour"] = point_colours(rig, images, masks, result["distance"], pano)
     _report(result, rig, args.out, f"classical baseline {args.rtss_preset}; candidates: {how}")
     return 0
 
@@ -182,6 +193,11 @@ def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
 
     if not args.onnx:
         raise ValueError("--backend onnx needs --onnx FILE (an exported model)")
+    given = [o for o, on in (("--panorama", args.panorama != "auto"), ("--up", args.up),
+                             ("--panorama-size", args.panorama_size)) if on]
+    if given:
+        raise ValueError(f"an ONNX file's panorama is fixed when it is exported; drop "
+                         f"{', '.join(given)} (or export with 'gijax export {given[0]} ...')")
     pred = OnnxPredictor(args.onnx)
     candidates = None
     if args.candidates != "train":  # the exported list is baked in unless another is asked for
@@ -190,9 +206,11 @@ def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
         config = model_config_from_dict(pred.info.config)
         candidates = resolve_candidates(args.candidates, rig, config.num_candidates,
                                         config.d_min, config.d_max)[0]
-    result = pred.predict(rig, images, masks, candidates)
+    rig = pred.info.oriented_rig(rig)
+    result = pred.predict(rig, images, masks, candidates, log=print)
     small = pred.info.scaled_rig(rig)
     feed_images = pred.info.feed(rig, images, masks)[0]["images"][0]
-    result["colour"] = point_colours(small, feed_images, None, result["distance"])
+    result["colour"] = point_colours(small, feed_images, None, result["distance"],
+                                     result["panorama"])
     _report(result, rig, args.out, f"ONNX model {args.onnx} (onnxruntime)")
     return 0

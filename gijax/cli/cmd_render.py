@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from gijax.geometry.panorama import Panorama
+from gijax.cli.options import add_panorama_options
 from gijax.geometry.rig import Rig
 from gijax.io.rigfile import load_rig
 
@@ -44,9 +44,10 @@ def run(args) -> int:
 
     if args.samples < 1:
         raise ValueError(f"--samples must be >= 1; found {args.samples}")
-    base = load_rig(args.rig)
-    h, w = args.pano
-    pano = Panorama.sphere(h, w) if args.full_sphere else Panorama.hemisphere(h, w)
+    from gijax.cli.options import panorama_from_args
+
+    base, pano = panorama_from_args(args, load_rig(args.rig), (160, 640), size=args.pano)
+    h, w = pano.shape
     rig = render_dataset(base, args.out, args.samples, seed=args.seed,
                          image_scale=_scale_for(base, args), pano=pano, style=args.style,
                          trajectory_size=args.trajectory_size, durable=args.durable, log=print)
@@ -84,11 +85,11 @@ def register(subparsers) -> None:
     size.add_argument("--size", type=lambda s: _pair(s, "--size"), default=None,
                       metavar="WxH", help="every camera's image size (keeps the aspect)")
     p.add_argument("--pano", type=lambda s: tuple(reversed(_pair(s, "--pano"))),
-                   default="640x160", metavar="WxH",
-                   help="ground-truth panorama size, width x height (640x160 is the paper's; "
-                        "128x32 matches the -cpu presets' output)")
-    p.add_argument("--full-sphere", action="store_true",
-                   help="label the full sphere instead of the hemisphere in front of the rig")
+                   default=None, metavar="WxH",
+                   help="ground-truth panorama size, width x height (default 640x160 for the "
+                        "hemisphere, the paper's, and 640x320 for the sphere; 128x32 matches "
+                        "the -cpu presets' output)")
+    add_panorama_options(p, "640x160", size=False)
     p.add_argument("--style", choices=STYLES, default="mixed",
                    help="scene style; mixed picks indoor or outdoor per sample")
     p.add_argument("--trajectory-size", type=int, default=1000,

@@ -5,6 +5,16 @@ from __future__ import annotations
 
 import argparse
 
+from gijax.cli.options import add_panorama_options
+
+
+def _oriented(args, rig):
+    """The rig with its panorama frame chosen by --panorama / --up (stored by --save / --out),
+    reported on one line."""
+    from gijax.cli.options import panorama_from_args
+
+    return panorama_from_args(args, rig, (160, 640))[0]
+
 
 def _show(args) -> int:
     from gijax.geometry.rig import describe_rig
@@ -15,6 +25,7 @@ def _show(args) -> int:
 
         check_output_file(args.save, "--save")
     rig = import_rig(args.rig, masks=args.masks, frame_camera=args.frame_camera)
+    rig = _oriented(args, rig)
     print(describe_rig(rig))
     note = unmasked_message(rig, args.rig)
     if note:
@@ -40,6 +51,7 @@ def _import(args) -> int:
     check_output_file(args.out)
     rig = import_rig(args.calibration, masks=args.masks, names=args.names,
                      frame_camera=args.frame_camera)
+    rig = _oriented(args, rig)
     print(f"imported {args.calibration}")
     print(describe_rig(rig))
     out = save_rig(rig, args.out)
@@ -96,6 +108,7 @@ def register(subparsers) -> None:
                            "--save")
     show.add_argument("--frame-camera", type=int, default=0,
                       help="for calibration files: the camera whose frame is the rig frame")
+    add_panorama_options(show, "160x640", size=False)
     show.set_defaults(func=_show)
     imp = sub.add_parser(
         "import", help="turn a calibration and per-camera masks into a gijax rig file",
@@ -115,6 +128,7 @@ def register(subparsers) -> None:
     imp.add_argument("--out", required=True, metavar="RIG.yaml", help="rig file to write")
     imp.add_argument("--frame-camera", type=int, default=0,
                      help="the camera whose frame is the rig frame")
+    add_panorama_options(imp, "160x640", size=False)
     imp.set_defaults(func=_import)
     lst = sub.add_parser("list", help="list the built-in rig layouts",
                          description="List the built-in rig layouts after the paper.")

@@ -161,7 +161,9 @@ def frame_graph_doc(rig: Rig) -> dict:
     for i, name in enumerate(rig.names):
         frames[name] = {"parent": RIG_FRAME, "rotation": _floats(rig.rotations[i]),
                         "translation": _floats(rig.translations[i])}
-    frames[PANO_FRAME] = {"parent": RIG_FRAME, "rotation": np.eye(3).tolist(),
+    # The panorama frame: its z axis is the panorama's pole, its x axis longitude 0.
+    rot = np.eye(3) if rig.panorama_rotation is None else rig.panorama_rotation
+    frames[PANO_FRAME] = {"parent": RIG_FRAME, "rotation": _floats(rot),
                           "translation": _floats(rig.reference)}
     return {"convention": "child-to-parent: p_parent = R @ p_child + t; camera frame x right, "
                           "y down, z forward; metres",
@@ -212,6 +214,10 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
     check_names(names)
     pano_pose = frames.get(PANO_FRAME, {"translation": [0.0, 0.0, 0.0]})
     reference = np.asarray(pano_pose.get("translation", [0.0, 0.0, 0.0]), np.float32)
+    pano_rot = np.asarray(pano_pose.get("rotation", np.eye(3).tolist()), np.float64)
+    if pano_rot.shape != (3, 3) or np.abs(pano_rot.T @ pano_rot - np.eye(3)).max() > 1e-4:
+        raise ValueError(f"{root} frame {PANO_FRAME!r}: rotation must be a 3x3 rotation matrix; "
+                         f"found {pano_rot.tolist()}")
     occ_doc = meta.get("occluder")
     occ = None
     if occ_doc:
@@ -219,7 +225,8 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
                                      jnp.float32)
                          for f in ("x", "y", "radius", "z_min", "z_max")))
     return Rig(tuple(cams), jnp.asarray(np.stack(rots)), jnp.asarray(np.stack(trans)),
-               jnp.asarray(reference), tuple(masks), occ, tuple(names))
+               jnp.asarray(reference), tuple(masks), occ, tuple(names),
+               jnp.asarray(pano_rot, jnp.float32))
 
 
 def pano_from_metadata(meta: dict, path) -> Panorama:

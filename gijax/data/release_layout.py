@@ -35,7 +35,7 @@ What the reader returns, in gijax's conventions (docs/architecture.md):
   1e6 m where the rig camera does not see. This reader performs the same resampling (see
   :func:`resample_rig_distance`) and stores it in gijax's panorama convention, whose frame G is
   right-handed with ``z_G = -y_rifs``, ``x_G = z_rifs``, ``y_G = -x_rifs``: that panorama is the
-  release's one mirrored left-right, pixel for pixel.
+  release's one, pixel for pixel (both in the common equirectangular layout).
 * ``rig``: a :class:`gijax.geometry.Rig` in frame G with its origin at the ``rif`` origin (the
   centre of the distance labels); camera k's pose is the pose of its ``image_frame``.
 
@@ -426,8 +426,8 @@ class LabelResampler:
         f = np.where(inside, blend_factor(raw)[yi, xi], 0.0)
         out = f * nearest + (1 - f) * linear
         out = np.where(self.valid, out, FAR)
-        # Release panorama column c holds gijax panorama column W - 1 - c (mirror image).
-        return np.ascontiguousarray(out[:, ::-1]).astype(np.float32)
+        # Both panoramas grow in longitude to the right: column c is column c.
+        return np.ascontiguousarray(out).astype(np.float32)
 
 
 def resample_rig_distance(raw: np.ndarray, model: ReleaseCameraModel, R_raw_label: np.ndarray,

@@ -44,9 +44,12 @@ import numpy as np
 from flax import nnx
 
 from gijax.export.graph import intrinsics_layout, rig_from_arrays
+from gijax.geometry.panorama import Panorama
+from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, scale_rig
 from gijax.io.paths import atomic_path
-from gijax.model import OmniStereoNet, check_candidates, forward, make_grids, with_conv3d
+from gijax.model import (OmniStereoNet, check_candidates, forward, make_grids, model_panorama,
+                         with_conv3d)
 
 IMAGES, MASKS = "images", "masks"
 RIG_INPUTS = ("intrinsics", "rotations", "translations", "reference", "candidates")
@@ -102,7 +105,7 @@ def _input_specs(cfg, rig: Rig, batch, rig_as_input: bool):
     return specs
 
 
-_grids_jit = jax.jit(make_grids, static_argnums=2)
+_grids_jit = jax.jit(make_grids, static_argnums=(2, 3))
 
 
 def _outputs(out: dict) -> tuple:
@@ -111,15 +114,19 @@ def _outputs(out: dict) -> tuple:
     return tuple(out[k] for k in OUTPUTS)
 
 
-def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: bool):
+def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: bool,
+                   pano: Panorama | None = None):
     """The exported function: positional inputs in the order of the module docstring, a tuple
-    of :data:`OUTPUTS`. ``rig`` is at the model's image size; ``model`` in eval mode."""
+    of :data:`OUTPUTS`. ``rig`` is at the model's image size; ``model`` in eval mode; ``pano``
+    the output panorama (default the model's own), oriented by ``rig``'s panorama frame, which
+    is baked in even when the rest of the rig is an input."""
     cfg = model.config
+    pano = model_panorama(cfg) if pano is None else pano
     if not rig_as_input:
         cand = jnp.asarray(candidates, jnp.float32)
         # Evaluated once, eagerly: the engine receives the grids as constants.
         grids = jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)),
-                                       _grids_jit(rig, cand, cfg))
+                                       _grids_jit(rig, cand, cfg, pano))
 
         def fn(images, masks):
             return _outputs(forward(model, images, masks, grids))
@@ -129,14 +136,15 @@ def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: boo
 
     def fn(images, masks, intrinsics, rotations, translations, reference, cand):
         run_rig = rig_from_arrays(rig, intrinsics, rotations, translations, reference)
-        return _outputs(forward(model, images, masks, make_grids(run_rig, cand, cfg)))
+        return _outputs(forward(model, images, masks, make_grids(run_rig, cand, cfg, pano)))
 
     return fn
 
 
 def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathLike, *,
                 opset: int = DEFAULT_OPSET, batch: int = 1, dynamic_batch: bool = False,
-                rig_as_input: bool = False, extra_metadata: dict | None = None) -> ExportResult:
+                rig_as_input: bool = False, extra_metadata: dict | None = None,
+                pano: Panorama | None = None) -> ExportResult:
     """Export ``model`` for ``rig`` (at its calibrated size) to the ONNX file ``path``.
 
     Args:
@@ -149,6 +157,8 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
       dynamic_batch: the batch axis of images, masks and outputs is symbolic ('B').
       rig_as_input: intrinsics, poses, reference and candidates become graph inputs.
       extra_metadata: more string metadata to store (e.g. the checkpoint path).
+      pano: the output panorama (default the model's own, :func:`gijax.model.model_panorama`),
+        oriented by ``rig``'s panorama frame (baked into the file).
 
     Returns:
       an :class:`ExportResult`.
@@ -164,8 +174,9 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
         raise ValueError(f"batch must be a positive integer; found {batch}")
     check_export_inputs(model, rig, candidates)
     run_rig = model_rig(cfg, rig)
+    pano = model_panorama(cfg) if pano is None else pano
     view = eval_view(with_conv3d(model, "native"))  # one Conv node per 3-D conv
-    fn = build_function(view, run_rig, candidates, rig_as_input)
+    fn = build_function(view, run_rig, candidates, rig_as_input, pano)
     specs = _input_specs(cfg, run_rig, "B" if dynamic_batch else int(batch), rig_as_input)
     names = list(specs)
     quiet = logging.getLogger("onnx_ir")
@@ -182,7 +193,7 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
         jax.clear_caches()
         quiet.setLevel(level)
     legalise(proto)
-    metadata = export_metadata(cfg, run_rig, candidates, rig_as_input, dynamic_batch)
+    metadata = export_metadata(cfg, run_rig, candidates, rig_as_input, dynamic_batch, pano)
     metadata.update({k: str(v) for k, v in (extra_metadata or {}).items()})
     for key, value in metadata.items():
         entry = proto.metadata_props.add()
@@ -191,15 +202,21 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     _save_atomic(proto, Path(path))
     inputs = {k: list(v) for k, v in specs.items()}
     bdim = "B" if dynamic_batch else int(batch)
-    outputs = {k: [bdim, *cfg.output_hw] for k in OUTPUTS}
+    outputs = {k: [bdim, *pano.shape] for k in OUTPUTS}
     return ExportResult(str(path), inputs, outputs, metadata)
 
 
 def export_metadata(cfg, run_rig: Rig, candidates, rig_as_input: bool,
-                    dynamic_batch: bool) -> dict:
+                    dynamic_batch: bool, pano: Panorama | None = None) -> dict:
     """String metadata stored in the file (read back by :mod:`gijax.export.ort_predict`)."""
     cam = run_rig.cameras[0]
+    pano = model_panorama(cfg) if pano is None else pano
     return {
+        "panorama": json.dumps({
+            "height": pano.height, "width": pano.width, "lat_min_rad": pano.lat_min,
+            "lat_max_rad": pano.lat_max,
+            "rotation_panorama_to_rig": np.asarray(panorama_rotation(run_rig),
+                                                   np.float64).tolist()}),
         "config": json.dumps({k: list(v) if isinstance(v, tuple) else v
                               for k, v in dataclasses.asdict(cfg).items()}),
         "mode": "rig_as_input" if rig_as_input else "baked",
@@ -304,17 +321,29 @@ def legalise(proto) -> None:
 
 # ----------------------------------------------------------------------------- validation
 
-def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> dict:
+def export_panorama(meta: dict, config) -> Panorama:
+    """The output panorama recorded in an export's metadata (files without one: the model's
+    own hemisphere)."""
+    if "panorama" not in meta:
+        return model_panorama(config)
+    doc = json.loads(meta["panorama"])
+    return Panorama(int(doc["height"]), int(doc["width"]), float(doc["lat_min_rad"]),
+                    float(doc["lat_max_rad"]))
+
+
+def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates,
+                  pano: Panorama | None = None) -> dict:
     """The same outputs computed by JAX (:func:`gijax.model.forward`, jitted), for parity
     checks. ``images`` (B, N, h, w, 3) float in [0, 1] at the model's image size, masks
-    (B, N, h, w); ``rig`` at its calibrated size."""
+    (B, N, h, w); ``rig`` at its calibrated size; ``pano`` the output panorama (default the
+    model's own)."""
     cfg = model.config
     run_rig = model_rig(cfg, rig)
     cand = jnp.asarray(candidates, jnp.float32)
 
     @nnx.jit
     def run(v, im, m, c):
-        return forward(v, im, m, make_grids(run_rig, c, cfg))
+        return forward(v, im, m, make_grids(run_rig, c, cfg, pano))
 
     out = run(eval_view(model), jnp.asarray(images, jnp.float32), jnp.asarray(masks, jnp.float32),
               cand)
@@ -327,13 +356,12 @@ def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates) -> 
 def rendered_inputs(config, rig: Rig, seed: int = 0, batch: int = 1) -> tuple:
     """(images (B, N, h, w, 3) float32 in [0, 1], masks (B, N, h, w) float32) rendered by
     :func:`gijax.render.render_sample` for the rig at the model's image size."""
-    from gijax.geometry.panorama import Panorama
     from gijax.render import render_sample
 
     run_rig = model_rig(config, rig)
     imgs, msks = [], []
     for i in range(batch):
-        s = render_sample(run_rig, seed + i, pano=Panorama.hemisphere(*config.output_hw))
+        s = render_sample(run_rig, seed + i, pano=model_panorama(config))
         imgs.append(s["images"].astype(np.float32) / 255.0)
         msks.append(s["masks"].astype(np.float32))
     return np.stack(imgs), np.stack(msks)
@@ -358,7 +386,8 @@ def validate_export(path: str | os.PathLike, model: OmniStereoNet, rig: Rig, can
     if images is None:
         images, masks = rendered_inputs(model.config, rig, seed,
                                         batch if isinstance(batch, int) else 1)
-    ref = jax_reference(model, rig, images, masks, candidates)
+    ref = jax_reference(model, rig, images, masks, candidates,
+                        export_panorama(meta, model.config))
     feed = {IMAGES: np.asarray(images, np.float32), MASKS: np.asarray(masks, np.float32)}
     if meta.get("mode") == "rig_as_input":
         feed.update(rig_feed(model_rig(model.config, rig), candidates))

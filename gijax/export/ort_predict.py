@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from gijax.export.graph import intrinsics_layout, rig_arrays
-from gijax.export.onnx_export import IMAGES, MASKS, OUTPUTS, RIG_INPUTS, read_metadata
+from gijax.export.onnx_export import (IMAGES, MASKS, OUTPUTS, RIG_INPUTS, export_panorama,
+                                      read_metadata)
 
 
 def available_providers() -> list[str]:
@@ -75,6 +76,17 @@ class ExportInfo:
         self.num_cameras = int(self.meta["num_cameras"])
         self.image_hw = tuple(json.loads(self.meta["image_hw"]))
         self.image_scale = float(self.meta.get("image_scale", "1.0"))
+        from gijax.store.configs import model_config_from_dict
+
+        self.panorama = export_panorama(self.meta, model_config_from_dict(self.config))
+        pano_doc = json.loads(self.meta.get("panorama", "{}"))
+        # The panorama-to-rig rotation baked into the grids (identity in older files).
+        self.panorama_rotation = np.asarray(pano_doc.get("rotation_panorama_to_rig", np.eye(3)),
+                                            np.float64)
+
+    def oriented_rig(self, rig):
+        """``rig`` with the panorama frame the file was exported with."""
+        return rig.replace(panorama_rotation=np.asarray(self.panorama_rotation, np.float32))
 
     def scaled_rig(self, rig):
         """``rig`` at the exported image size (scaled by the model's image scale if needed)."""
@@ -91,14 +103,16 @@ class ExportInfo:
                              f"{scaled.cameras[0].height} x {scaled.cameras[0].width})")
         return scaled
 
-    def feed(self, rig, images, masks=None, candidates=None, batch: int | None = 1):
+    def feed(self, rig, images, masks=None, candidates=None, batch: int | None = 1, log=None):
         """(input feed for one sample repeated to ``batch``, candidates used).
 
-        ``images`` (N, h, w, 3) uint8 or float RGB in [0, 1] at the rig's size or the exported
-        size; ``masks`` (N, h, w) or None for the rig's own masks; ``candidates`` (D,) metres,
-        only selectable for rig-as-input files (default: the exported list).
+        ``images`` (N, h, w, 3) uint8 or float RGB in [0, 1] of the rig's aspect ratio, resized
+        to the exported size when needed (:func:`gijax.data.images.fit_images`, the size policy
+        of every method; ``log`` receives its note); ``masks`` (N, h, w) or None for the rig's
+        own masks; ``candidates`` (D,) metres, only selectable for rig-as-input files (default:
+        the exported list).
         """
-        import cv2
+        from gijax.data.images import fit_images
 
         images = np.asarray(images)
         if images.ndim != 4 or images.shape[-1] != 3:
@@ -109,19 +123,16 @@ class ExportInfo:
                              f"{images.shape[0]} images and a rig with {rig.num_cameras}")
         run_rig = self.scaled_rig(rig)
         h, w = self.image_hw
+        if masks is not None:
+            masks = np.asarray(masks, np.float32)
+            if masks.shape != images.shape[:3]:
+                raise ValueError(f"masks must have shape {images.shape[:3]} to match the "
+                                 f"images; found {masks.shape}")
+        _, images, masks = fit_images(rig, images, masks, (h, w), log)
         if masks is None:
             masks = np.stack([np.ones((h, w), np.float32) if m is None else np.asarray(m)
                               for m in run_rig.masks])
         masks = np.asarray(masks, np.float32)
-        if images.shape[1:3] != (h, w):
-            if images.shape[1:3] != (rig.cameras[0].height, rig.cameras[0].width):
-                raise ValueError(f"images must be {h} x {w} or the rig's {rig.cameras[0].height}"
-                                 f" x {rig.cameras[0].width}; found {images.shape[1:3]}")
-            images = np.stack([cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)
-                               for im in images])
-            if masks.shape[1:3] != (h, w):
-                masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA)
-                                  for m in masks])
         if masks.shape != images.shape[:3]:
             raise ValueError(f"masks must have shape {images.shape[:3]}; found {masks.shape}")
         if np.issubdtype(images.dtype, np.integer):
@@ -173,17 +184,20 @@ class OnnxPredictor:
     def candidates(self) -> np.ndarray:
         return self.info.candidates
 
-    def predict(self, rig, images, masks=None, candidates=None) -> dict:
+    def predict(self, rig, images, masks=None, candidates=None, log=None) -> dict:
         """One sample (see :meth:`ExportInfo.feed` for the arguments).
 
         Returns numpy ``inv_distance`` (H, W) 1/m, ``distance`` (H, W) m, ``entropy`` (H, W)
-        nats, ``valid`` (H, W) bool and ``candidates`` (D,) metres.
+        nats, ``valid`` (H, W) bool, ``candidates`` (D,) metres and ``panorama`` (the exported
+        :class:`~gijax.geometry.panorama.Panorama`, oriented by
+        ``self.info.panorama_rotation``).
         """
-        feed, cand = self.info.feed(rig, images, masks, candidates, self.batch)
+        feed, cand = self.info.feed(rig, images, masks, candidates, self.batch, log)
         got = self.run_batch(feed)
         out = {k: np.asarray(got[k][0]) for k in OUTPUTS}
         out["valid"] = out["valid"] > 0.5
         out["candidates"] = cand
+        out["panorama"] = self.info.panorama
         return out
 
     def run_batch(self, feed: dict) -> dict:

@@ -1,13 +1,18 @@
 """Equirectangular panoramas: ray grids and direction <-> pixel maps, both ways, any size.
 
 A panorama is described by its size and its latitude range. Directions are expressed in the
-frame whose +z axis is the panorama's pole (for the rig panorama: the rig's viewing axis, the
-common optical axis of the cameras; for a per-camera surrogate image: that camera's optical axis).
+panorama's own frame, whose +z axis is its pole (for the rig panorama: the frame that
+:mod:`gijax.geometry.panorama_frame` places in the rig, by default the rig's viewing axis; for a
+per-camera surrogate image: that camera's optical axis).
 
 * Polar angle ``theta`` from +z; latitude ``lat = theta - 90 deg``. The paper's hemisphere runs
   from lat = -90 deg (row 0 edge, the pole, on the axis) to lat = 0 deg (the horizon of the
-  rig plane); the full sphere runs from -90 to +90 deg.
-* Longitude ``lon = atan2(y, x)`` in [-180, 180) deg, column 0 edge at -180 deg.
+  rig plane); the full sphere runs from -90 to +90 deg. Row 0 is the pole: the top of the image.
+* Longitude ``lon = atan2(-y, x)`` in [-180, 180) deg, column 0 edge at -180 deg, 0 deg (the
+  +x axis) in the middle column. This is the common equirectangular layout: seen from the
+  centre with the pole up, the column grows to the right (a viewer facing +x with +z up has -y
+  on the right hand). It is the layout of the release's panoramas (longitude ``atan2(x, z)`` in
+  a frame whose -y axis is the pole), and the image is not mirrored.
 * Pixel centres follow the image convention of :mod:`gijax.geometry.cameras`: pixel (col, row)
   has its centre at lon = -pi + (col + 0.5) * 2 pi / W, lat = lat0 + (row + 0.5) * (lat1 - lat0) / H.
 
@@ -63,10 +68,11 @@ def lonlat_grid(pano: Panorama, dtype=jnp.float32) -> tuple[Array, Array]:
 
 
 def lonlat_to_direction(lon: Array, lat: Array) -> Array:
-    """Unit direction (..., 3); lat = -90 deg is +z (the pole), lat = 0 the x-y plane."""
+    """Unit direction (..., 3); lat = -90 deg is +z (the pole), lat = 0 the x-y plane, lon = 0
+    the +x axis and lon = +90 deg the -y axis (see the module docstring)."""
     theta = lat + jnp.pi / 2
     s = jnp.sin(theta)
-    return jnp.stack([s * jnp.cos(lon), s * jnp.sin(lon), jnp.cos(theta)], axis=-1)
+    return jnp.stack([s * jnp.cos(lon), -s * jnp.sin(lon), jnp.cos(theta)], axis=-1)
 
 
 def direction_to_lonlat(d: Array) -> tuple[Array, Array]:
@@ -78,7 +84,7 @@ def direction_to_lonlat(d: Array) -> tuple[Array, Array]:
     x, y, z = d[..., 0], d[..., 1], d[..., 2]
     sq = x * x + y * y
     on_pole = sq <= guard_floor(sq)
-    lon = jnp.arctan2(jnp.where(on_pole, 0.0, y), jnp.where(on_pole, 1.0, x))
+    lon = jnp.arctan2(jnp.where(on_pole, 0.0, -y), jnp.where(on_pole, 1.0, x))
     theta = jnp.arctan2(safe_sqrt(sq), z)
     return lon, theta - jnp.pi / 2
 

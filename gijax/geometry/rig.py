@@ -1,9 +1,12 @@
-"""Multi-camera rigs: cameras, camera-to-rig poses, a reference point, masks, an occluder.
+"""Multi-camera rigs: cameras, camera-to-rig poses, a reference point, masks, an occluder, and
+the orientation of the rig's panorama.
 
-Rig frame: +z is the viewing axis shared by the cameras (the pole of the rig panorama), x and y
-span the mounting plane; like the camera frame it is right-handed (x right, y down, z forward
-when seen from behind the cameras). Poses are camera-to-rig: a point ``p_c`` in camera i's
-frame is ``R_i @ p_c + t_i`` in the rig frame, so ``t_i`` is camera i's centre.
+Rig frame: for the built-in layouts +z is the viewing axis shared by the cameras, x and y span
+the mounting plane; like the camera frame it is right-handed (x right, y down, z forward when
+seen from behind the cameras). Poses are camera-to-rig: a point ``p_c`` in camera i's frame is
+``R_i @ p_c + t_i`` in the rig frame, so ``t_i`` is camera i's centre. The panorama's frame
+(its pole and longitude origin) is the rotation ``panorama_rotation`` (panorama-to-rig; the
+identity puts the pole on the rig's +z axis), see :mod:`gijax.geometry.panorama_frame`.
 
 A :class:`Rig` is a pytree: its poses, reference point, intrinsics and masks are leaves, so every
 function of a rig here is traceable (jit, vmap, grad in those leaves; camera indices and image
@@ -35,6 +38,8 @@ class Rig:
       rotations: (N, 3, 3) camera-to-rig rotations.
       translations: (N, 3) camera centres in the rig frame, metres.
       reference: (3,) the panorama centre in the rig frame.
+      panorama_rotation: (3, 3) panorama-to-rig rotation: its columns are the panorama frame's
+        x (longitude 0), y and z (the pole, row 0) axes in the rig frame.
       masks: per camera ``None`` (all valid) or an (H, W) array, 1 = valid, 0 = self-occluded.
       occluder: the rig's body (or ``None``), used for rendering and to derive masks.
       names: camera names (static).
@@ -47,6 +52,8 @@ class Rig:
     masks: tuple
     occluder: Optional[Cylinder] = None
     names: tuple = ()
+    # None (a rig built without one) reads as the identity; make_rig always sets it.
+    panorama_rotation: Optional[Array] = None
 
     @property
     def num_cameras(self) -> int:
@@ -58,14 +65,15 @@ class Rig:
 
 jax.tree_util.register_dataclass(
     Rig,
-    data_fields=["cameras", "rotations", "translations", "reference", "masks", "occluder"],
+    data_fields=["cameras", "rotations", "translations", "reference", "masks", "occluder",
+                 "panorama_rotation"],
     meta_fields=["names"],
 )
 
 
 def make_rig(cameras: Sequence, rotations, translations, reference=None, masks=None,
              occluder: Optional[Cylinder] = None, names: Sequence[str] | None = None,
-             dtype=jnp.float32) -> Rig:
+             dtype=jnp.float32, panorama_rotation=None) -> Rig:
     n = len(cameras)
     if n == 0:
         raise ValueError("a rig needs at least one camera; found 0")
@@ -76,7 +84,10 @@ def make_rig(cameras: Sequence, rotations, translations, reference=None, masks=N
     if len(masks) != n:
         raise ValueError(f"rig has {n} cameras but {len(masks)} masks")
     names = tuple(names) if names is not None else tuple(f"cam{i}" for i in range(n))
-    return Rig(tuple(cameras), rotations, translations, reference, masks, occluder, names)
+    pano_rot = (jnp.eye(3, dtype=dtype) if panorama_rotation is None
+                else jnp.asarray(panorama_rotation, dtype).reshape(3, 3))
+    return Rig(tuple(cameras), rotations, translations, reference, masks, occluder, names,
+               pano_rot)
 
 
 def rig_to_camera(rig: Rig, i: int, points: Array) -> Array:
@@ -207,10 +218,15 @@ def describe_rig(rig: Rig) -> str:
         lines.append("        " + "".join(f"{n:>10s}" for n in rig.names))
         for i, n in enumerate(rig.names):
             lines.append(f"  {n:>6s}" + "".join(f"{b[i, j]:10.4f}" for j in range(len(b))))
-    ref = np.asarray(rig.reference, np.float64)
+    ref = np.round(np.asarray(rig.reference, np.float64), 4) + 0.0   # no "-0.0000"
     lines.append(f"reference point: [{ref[0]:+.4f}, {ref[1]:+.4f}, {ref[2]:+.4f}] m")
     if rig.occluder is not None:
         o = rig.occluder
         lines.append(f"occluder: cylinder at ({float(o.x):+.4f}, {float(o.y):+.4f}), radius "
                      f"{float(o.radius):.4f} m, z {float(o.z_min):.3f}..{float(o.z_max):.3f} m")
+    rot = np.eye(3) if rig.panorama_rotation is None else np.asarray(rig.panorama_rotation,
+                                                                     np.float64)
+    fmt = lambda v: "[" + ", ".join(f"{x + 0.0:+.3f}" for x in np.round(v, 3)) + "]"  # noqa: E731
+    lines.append(f"panorama frame: pole (top row) {fmt(rot[:, 2])}, longitude 0 (middle column) "
+                 f"{fmt(rot[:, 0])}, rig frame")
     return "\n".join(lines)

@@ -111,11 +111,14 @@ def checked_camera(model: str, params: dict, res: tuple[int, int], fov_deg, wher
 
 def chain_to_rig(cams, t_c0_cn, frame_camera: int, names, where: Where) -> Rig:
     """A rig from calibrated cameras and their 4x4 camera-n-to-camera-0 transforms, with the
-    rig frame equal to camera ``frame_camera`` (whose optical axis becomes the viewing axis)."""
+    rig frame equal to camera ``frame_camera`` (whose optical axis becomes the viewing axis)
+    and the reference point (the panorama's centre) at the centroid of the camera centres, so
+    that a ring of cameras is seen from its middle rather than from one lens."""
     if not 0 <= frame_camera < len(cams):
         raise where.error("frame_camera", f"a camera index in [0, {len(cams) - 1}]",
                           frame_camera)
     t_rig_c0 = np.linalg.inv(t_c0_cn[frame_camera])
     poses = [t_rig_c0 @ t for t in t_c0_cn]
-    return make_rig(cams, np.stack([p[:3, :3] for p in poses]),
-                    np.stack([p[:3, 3] for p in poses]), names=names)
+    centres = np.stack([p[:3, 3] for p in poses])
+    return make_rig(cams, np.stack([p[:3, :3] for p in poses]), centres, centres.mean(axis=0),
+                    names=names)

@@ -12,6 +12,9 @@ The gijax YAML format (lengths in metres, angles in degrees, pixels with integer
 
     gijax_rig: 1
     reference: [0.0, 0.0, 0.0]          # panorama centre in the rig frame (default: origin)
+    panorama_rotation: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]  # optional panorama-to-rig rotation:
+                                        # columns = longitude 0, y, pole (default: identity,
+                                        # the pole on the rig's +z axis)
     occluder:                           # optional capped cylinder along +z (the rig body)
       {x: 0.0, y: 0.0, radius: 0.05, z_min: 0.0, z_max: 0.1}
     cameras:
@@ -29,7 +32,8 @@ Intrinsics by model: ``ds`` fx fy cx cy xi alpha; ``eucm`` fx fy cx cy alpha bet
 fx fy cx cy k1 k2 k3 k4; ``equidistant`` fx fy cx cy.
 
 Calibration files are turned into camera-to-rig poses with the rig frame equal to camera
-``frame_camera`` (0 unless told otherwise), whose optical axis is then the rig's viewing axis.
+``frame_camera`` (0 unless told otherwise), whose optical axis is then the rig's viewing axis,
+and the reference point (the panorama centre) at the centroid of the camera centres.
 
 Every malformed file raises one ``ValueError`` naming the file, the camera, the field and what
 was expected (:mod:`gijax.io.parsing`); a missing file raises ``FileNotFoundError``.
@@ -58,7 +62,7 @@ FORMAT_VERSION = 1
 
 _CAMERA_KEYS = {"name", "model", "intrinsics", "resolution", "fov_deg", "rotation", "quaternion",
                 "translation", "mask"}
-_RIG_KEYS = {"gijax_rig", "name", "reference", "occluder", "cameras"}
+_RIG_KEYS = {"gijax_rig", "name", "reference", "occluder", "cameras", "panorama_rotation"}
 _OCCLUDER_KEYS = ("x", "y", "radius", "z_min", "z_max")
 
 
@@ -139,6 +143,12 @@ def _parse_gijax(path: Path, data: dict) -> Rig:
     reference = None
     if data.get("reference") is not None:
         reference = floats(data["reference"], 3, "reference", where, "[x, y, z] in metres")
+    pano_rot = None
+    if data.get("panorama_rotation") is not None:
+        pano_rot = np.asarray(floats(data["panorama_rotation"], 9, "panorama_rotation", where,
+                                     "a 3x3 rotation matrix (panorama-to-rig)"),
+                              np.float64).reshape(3, 3)
+        check_rotation(pano_rot, "panorama_rotation", where)
     occluder = None
     if data.get("occluder") is not None:
         occ = data["occluder"]
@@ -149,7 +159,8 @@ def _parse_gijax(path: Path, data: dict) -> Rig:
         occluder = Cylinder(*vals)
     return make_rig([p[1] for p in parsed], np.stack([p[2] for p in parsed]),
                     np.stack([p[3] for p in parsed]), reference,
-                    masks=[p[4] for p in parsed], occluder=occluder, names=names)
+                    masks=[p[4] for p in parsed], occluder=occluder, names=names,
+                    panorama_rotation=pano_rot)
 
 
 def load_rig(name_or_path, frame_camera: int = 0) -> Rig:
@@ -232,6 +243,9 @@ def rig_to_dict(rig: Rig, mask_files: Optional[list] = None) -> dict:
         cams.append(entry)
     out = {"gijax_rig": FORMAT_VERSION,
            "reference": _short_list(rig.reference)}
+    rot = rig.panorama_rotation
+    if rot is not None and not np.allclose(np.asarray(rot), np.eye(3), atol=0.0):
+        out["panorama_rotation"] = _short_list(rot)
     if rig.occluder is not None:
         out["occluder"] = {k: _short(getattr(rig.occluder, k)) for k in _OCCLUDER_KEYS}
     out["cameras"] = cams
@@ -247,7 +261,8 @@ def save_rig(rig: Rig, path) -> Path:
     """Write ``rig`` as a gijax YAML rig file; masks go to ``<stem>_<camera>_mask.png`` beside it.
 
     Masks are stored as binary PNGs (value >= 0.5 is valid). ``load_rig(path)`` returns a rig
-    with the same cameras, poses, reference, occluder, names and masks (float32-exact).
+    with the same cameras, poses, reference, panorama frame, occluder, names and masks
+    (float32-exact).
     """
     import cv2
     import yaml

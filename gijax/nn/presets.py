@@ -31,6 +31,7 @@ _FEATURES = ("plain", "spherical")
 _COST_VOLUMES = ("concat", "variance")
 _SPHERICAL_TAPS = ("release", "tangent")
 _SWEEP_BOUNDARIES = ("zeros", "wrap")
+PANORAMA_COVERAGES = ("hemisphere", "sphere")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,9 +39,12 @@ class ModelConfig:
     """Everything that fixes a network's structure and sizes (hashable, usable as a jit static).
 
     Sizes are (height, width) in pixels. ``surrogate_hw`` is the per-camera hemisphere image fed
-    to the feature extractor (features come out at a quarter of it), ``cost_hw`` the rig
-    hemisphere grid of the cost volume and ``output_hw`` the regressed panorama (twice
-    ``cost_hw``). ``image_scale`` is the factor applied to the raw fisheye images and the rig
+    to the feature extractor (features come out at a quarter of it), ``cost_hw`` the grid of
+    the cost volume over the rig panorama and ``output_hw`` the regressed panorama (twice
+    ``cost_hw``). ``panorama`` is the part of the sphere those two cover and the model is
+    trained on: ``'hemisphere'`` (the paper's, around the panorama pole) or ``'sphere'``; a
+    model runs on the other coverage at the same angular resolution
+    (:func:`gijax.model.model_panorama`). ``image_scale`` is the factor applied to the raw fisheye images and the rig
     intrinsics before resampling (1.0 at paper size). Distances ``d_min``/``d_max`` are metres.
     ``unet_in`` is the number of channels of the cost volume, which the U-Net consumes: the
     camera count times ``feature_channels`` for concat, ``feature_channels`` for variance.
@@ -84,6 +88,7 @@ class ModelConfig:
     spherical_taps: str = "release"
     sweep_boundary: str = "zeros"
     conv3d: str = "auto"
+    panorama: str = "hemisphere"
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -99,6 +104,7 @@ class ModelConfig:
             ("spherical_taps", _SPHERICAL_TAPS),
             ("sweep_boundary", _SWEEP_BOUNDARIES),
             ("conv3d", CONV3D_LOWERINGS),
+            ("panorama", PANORAMA_COVERAGES),
         ):
             if getattr(self, field) not in allowed:
                 fail(field, f"one of {allowed}", getattr(self, field))

@@ -22,8 +22,9 @@ from gijax.render.scene import NUM_PRIMITIVES, Scene, sphere_scene, translate
 
 Array = jax.Array
 # The version of what a seed renders to. Datasets record it, so resuming a dataset made by
-# another version is refused instead of mixing two generations of scenes. 2: named draws.
-SCENE_VERSION = 2
+# another version is refused instead of mixing two generations of scenes. 2: named draws;
+# 3: panorama longitude in the common equirectangular direction (labels mirrored from 2).
+SCENE_VERSION = 3
 STYLES = ("indoor", "outdoor")
 STYLE_CHOICES = STYLES + ("mixed",)
 

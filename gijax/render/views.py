@@ -19,7 +19,8 @@ Labels:
 * ``masks`` (N, h, w): 1 where the pixel sees the world (inside the lens image, not the rig's
   body, and inside the rig's own mask if it has one).
 * ``pano_distance`` (H, W): metres from the rig's reference point along each panorama ray
-  (:func:`gijax.geometry.panorama.ray_grid`, rig frame); the rig's body is not in it.
+  (:func:`gijax.geometry.panorama_frame.panorama_rays`: the panorama oriented by the rig's
+  panorama frame); the rig's body is not in it.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import numpy as np
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.occluder import FAR, cylinder_intersection
 from gijax.geometry.panorama import Panorama, ray_grid
+from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, is_homogeneous
 from gijax.render.clearance import rig_clearance
 from gijax.render.named_draws import named_key
@@ -173,6 +175,8 @@ def _render_views(scene: Scene, rig: Rig, key: Array, pano_dirs: Array, pano_sha
     rays = _all_camera_rays(rig)
     sizes = [r["dirs"].shape[0] for r in rays]
     m_cam = sum(sizes)
+    # Panorama-frame rays into the rig frame (the cached rays do not depend on the rig).
+    pano_dirs = pano_dirs @ panorama_rotation(rig).astype(pano_dirs.dtype).T
     m_pano = pano_dirs.shape[0]
     chunk = min(chunk, max(m_cam, m_pano))
     rows_cam = -(-m_cam // chunk) * chunk
@@ -217,9 +221,13 @@ def _render_views(scene: Scene, rig: Rig, key: Array, pano_dirs: Array, pano_sha
 
 
 def render_panorama_distance(scene: Scene, reference: Array, pano: Panorama,
-                             chunk: int = DEFAULT_CHUNK) -> Array:
-    """(H, W) distance in metres from ``reference`` (3,) along every panorama ray (rig frame)."""
-    return _panorama_distance(scene, jnp.asarray(reference, jnp.float32), _pano_rays(pano),
+                             chunk: int = DEFAULT_CHUNK, rotation=None) -> Array:
+    """(H, W) distance in metres from ``reference`` (3,) along every panorama ray; ``rotation``
+    (3, 3) is the panorama-to-rig rotation (default the identity: pole on the rig's +z)."""
+    dirs = _pano_rays(pano)
+    if rotation is not None:
+        dirs = dirs @ jnp.asarray(rotation, dirs.dtype).T
+    return _panorama_distance(scene, jnp.asarray(reference, jnp.float32), dirs,
                               chunk).reshape(pano.shape)
 
 

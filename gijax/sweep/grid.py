@@ -1,7 +1,8 @@
 """Sphere-sweep sampling grids, computed from the rig and the candidate list (pure, jit-able).
 
 For every candidate distance ``d`` and every cell of the cost-volume panorama (the rig's
-hemisphere, 80 x 320 at the paper's size), the 3D point ``reference + d * ray`` is expressed in
+hemisphere, 80 x 320 at the paper's size, or any panorama oriented by the rig's panorama frame,
+:mod:`gijax.geometry.panorama_frame`), the 3D point ``reference + d * ray`` is expressed in
 each camera's frame and mapped to that camera's feature-map pixel. A camera's feature map is the
 stride-s output of the feature extractor run on its surrogate image (the equirectangular image
 of the hemisphere around its optical axis, see :mod:`gijax.sweep.surrogate`); because the
@@ -21,7 +22,8 @@ import jax
 import jax.numpy as jnp
 
 from gijax.geometry import cameras as cam_lib
-from gijax.geometry.panorama import Panorama, direction_to_pixel, ray_grid
+from gijax.geometry.panorama import Panorama, direction_to_pixel
+from gijax.geometry.panorama_frame import panorama_rays
 from gijax.geometry.rig import Rig, map_cameras
 
 Array = jax.Array
@@ -32,7 +34,7 @@ _MIN_RANGE = 1e-6
 
 def sweep_points(rig: Rig, candidates: Array, cost_pano: Panorama) -> Array:
     """(D, h, w, 3) rig-frame points ``reference + d * ray`` of every candidate and cell."""
-    rays = ray_grid(cost_pano, dtype=rig.translations.dtype)
+    rays = panorama_rays(rig, cost_pano)
     cand = jnp.asarray(candidates, rays.dtype)
     return rig.reference + cand[:, None, None, None] * rays[None]
 
@@ -58,7 +60,7 @@ def sweep_grid(rig: Rig, candidates: Array, cost_pano: Panorama,
     Args:
       rig: the camera rig (poses camera-to-rig, metres).
       candidates: (D,) candidate distances from ``rig.reference``, metres.
-      cost_pano: the cost-volume panorama in the rig frame (h, w cells).
+      cost_pano: the cost-volume panorama (h, w cells), oriented by the rig's panorama frame.
       feature_pano: the per-camera feature-map panorama (the surrogate hemisphere at the
         feature extractor's resolution).
 

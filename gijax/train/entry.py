@@ -4,6 +4,7 @@ experiments call it directly)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import NamedTuple, Optional
 
@@ -23,6 +24,40 @@ class TrainingResult(NamedTuple):
     def last_validation(self) -> Optional[dict]:
         vals = [r for r in self.history if r.get("split") == "val"]
         return vals[-1] if vals else None
+
+
+def fit_panorama(config: TrainConfig, reader, log=None):
+    """The training configuration and model configuration for the dataset's label panorama.
+
+    The model is trained on the part of the sphere its labels cover: a preset made for the
+    hemisphere trained on full-sphere labels becomes a sphere model at the same angular
+    resolution (``panorama``, ``cost_hw`` and ``output_hw`` overridden, said through ``log``).
+    Labels of another size than the model's output are refused, naming both.
+    """
+    from gijax.geometry.panorama_frame import coverage_of
+    from gijax.model import model_panorama
+
+    mc = config.model_config()
+    label = getattr(reader, "pano", None)
+    if label is None:
+        return config, mc
+    coverage = coverage_of(label)
+    if coverage != mc.panorama:
+        h, w = model_panorama(mc, coverage).shape
+        over = dict(config.model_overrides, panorama=coverage, output_hw=[h, w],
+                    cost_hw=[h // 2, w // 2])
+        config = dataclasses.replace(config, model_overrides=over)
+        mc = config.model_config()
+        if log is not None:
+            log(f"note: the training labels cover the {coverage}; {mc.name} is trained on it "
+                f"(panorama={coverage}, output {h}x{w})")
+    if tuple(label.shape) != tuple(mc.output_hw):
+        raise ValueError(f"the training labels are {label.height} x {label.width} panoramas but "
+                         f"model {mc.name!r} outputs {mc.output_hw[0]} x {mc.output_hw[1]}; "
+                         f"render the data at the model's size (gijax render --pano "
+                         f"{mc.output_hw[1]}x{mc.output_hw[0]}) or override output_hw and "
+                         f"cost_hw")
+    return config, mc
 
 
 def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, *,
@@ -58,10 +93,12 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
         return reader
 
     reader = opened(data, "training")
+    config, mc = fit_panorama(config, reader, log=print if progress else None)
     if rig:
         from gijax.io.rigfile import load_rig
 
-        train_rig = load_rig(rig)
+        # The labels fix the panorama frame: the dataset's, whatever the rig file says.
+        train_rig = load_rig(rig).replace(panorama_rotation=reader.rig.panorama_rotation)
     else:
         train_rig = reader.rig
     make_stream = dataset_stream_factory(reader, train_rig, config.batch_size, config.seed,

@@ -15,12 +15,13 @@ from gijax.io.paths import write_bytes_atomic
 
 
 def panorama_points(distance: np.ndarray, reference, pano: Panorama | None = None,
-                    valid: np.ndarray | None = None, max_distance: float = 1e3
-                    ) -> tuple[np.ndarray, np.ndarray]:
+                    valid: np.ndarray | None = None, max_distance: float = 1e3,
+                    rotation=None) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) distances (m) -> points (M, 3) float32 in the rig frame and the (H, W) selection.
 
     Pixels with non-finite distance, distance above ``max_distance`` (sky) or ``valid`` False
-    are dropped. ``pano`` defaults to the hemisphere of the distance map's size.
+    are dropped. ``pano`` defaults to the hemisphere of the distance map's size; ``rotation``
+    (3, 3) is the rig's panorama-to-rig rotation (``Rig.panorama_rotation``, default identity).
     """
     distance = np.asarray(distance, np.float64)
     if distance.ndim != 2:
@@ -29,6 +30,8 @@ def panorama_points(distance: np.ndarray, reference, pano: Panorama | None = Non
     if pano.shape != distance.shape:
         raise ValueError(f"panorama {pano.shape} does not match distance shape {distance.shape}")
     rays = np.asarray(ray_grid(pano), np.float64)
+    if rotation is not None:
+        rays = rays @ np.asarray(rotation, np.float64).T
     keep = np.isfinite(distance) & (distance > 0) & (distance <= max_distance)
     if valid is not None:
         keep &= np.asarray(valid, bool)
