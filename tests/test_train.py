@@ -239,3 +239,38 @@ def test_grad_accum_and_bf16_step_agree_with_plain_step():
     p0 = jax.tree.leaves(out["accum"][1]["params"])
     p1 = jax.tree.leaves(out["accum_bf16"][1]["params"])
     assert all(a.dtype == b.dtype == jnp.float32 for a, b in zip(p0, p1))   # params stay f32
+
+
+def test_learned_candidate_list_trains_is_saved_and_is_what_the_run_predicts_with(tmp_path):
+    """--learn-candidates: the list moves with the network, keeps its ends, is logged at each
+    validation, written to candidates.json, stored in the checkpoints and returned (and bundled)
+    by the store; resuming under the other setting is refused."""
+    from gijax.store.runs import load_for_inference
+    from gijax.train.bundle import write_bundle
+    from gijax.train.sources import array_stream_factory
+    from gijax.train.trainer import Trainer
+
+    arr = tiny_arrays(2)
+    run = tmp_path / "run"
+    cfg = _config(steps=6, ckpt_every=3, val_every=3, learn_candidates=True, candidates_lr=0.05)
+    t = Trainer(cfg, run, tiny_rig(), array_stream_factory(arr, 2, 0), lambda: [arr],
+                progress=False)
+    t.fit()
+    t.close()
+    learned = json.loads((run / "candidates.json").read_text())
+    cand = np.asarray(learned["candidates"])
+    assert learned["step"] == 6 and np.allclose(learned["initial"], CANDIDATES)
+    assert cand[0] == pytest.approx(CANDIDATES[0]) and cand[-1] == pytest.approx(CANDIDATES[-1])
+    assert np.all(np.diff(cand) > 0)
+    assert np.abs(cand - np.asarray(CANDIDATES)).max() > 1e-4       # it did move
+    vals = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()
+            if '"split": "val"' in line]
+    assert [v["step"] for v in vals] == [3, 6] and len(vals[-1]["candidates"]) == len(cand)
+    _, _, got = load_for_inference(run, which="latest")
+    np.testing.assert_allclose(got, cand, rtol=1e-6)
+    bundle = write_bundle(run, tmp_path / "bundle", which="latest")
+    np.testing.assert_allclose(json.loads((bundle / "config.json").read_text())["candidates"],
+                               cand, rtol=1e-6)
+    with pytest.raises(ValueError, match="learned candidate list"):
+        Trainer(_config(steps=8), run, tiny_rig(), array_stream_factory(arr, 2, 0), None,
+                progress=False)

@@ -37,7 +37,8 @@ import pytest
 import gijax.candidates as cand_pkg
 from gijax import numerics
 from gijax.baseline import camera_select, cost_filter, matching_cost, rtss, stitch, views, winner
-from gijax.candidates import closed_form, parallax, rig_aware, spacing, uniformity
+from gijax.candidates import (closed_form, parallax, parametrisation, rig_aware, spacing,
+                              uniformity)
 from gijax.design import constraints, optimize, spec as design_spec
 from gijax.geometry import cameras, field_of_view, occluder, panorama, rig as rig_lib, rotations
 from gijax.geometry import panorama_frame
@@ -548,6 +549,17 @@ def _ev(seed):
       diff=(0, 1, 2))
 def _gi(seed):
     return jnp.asarray(0.5, F64), jnp.asarray(90.0 + seed, F64), jnp.asarray(0.3, F64)
+
+
+@case(parametrisation.candidates_from_logits, diff=(0, 1, 2))
+def _candidates_from_logits(seed):
+    return (jnp.asarray([0.3, -1.0 + seed, 0.7, 0.1], F64), jnp.asarray(0.5, F64),
+            jnp.asarray(40.0 + seed, F64))
+
+
+@case(parametrisation.logits_from_candidates, diff=(0,))
+def _logits_from_candidates(seed):
+    return (jnp.asarray([0.5, 0.8 + 0.1 * seed, 1.7, 6.0, 100.0], F64),)
 
 
 @case(closed_form.closed_form_steps, diff=(0, 1))

@@ -14,6 +14,7 @@ from gijax.candidates.rig_aware import (DEFAULT_PANO, MEASURE_UNITS, RigTerms,
                                         cumulative_displacement, effective_baseline,
                                         fit_closed_form_baseline, rig_gi_candidates, rig_terms,
                                         solve_equal_steps)
+from gijax.candidates.parametrisation import candidates_from_logits, logits_from_candidates
 from gijax.candidates.spacing import camera_spacing, spacing_gi_candidates
 from gijax.candidates.uniformity import step_uniformity, summarize_steps
 from gijax.candidates.validation import check_candidates, guard_candidates
@@ -58,9 +59,10 @@ def recomputed_candidates(spec: str, n: int, rig, d_min=0.5, d_max=100.0):
 
 __all__ = [
     "DEFAULT_PANO", "KINDS", "MEASURE_UNITS", "RECOMPUTED", "TRAIN_BASELINE", "RigTerms",
-    "camera_spacing", "candidates_for", "check_candidates", "closed_form_steps",
+    "camera_spacing", "candidates_for", "candidates_from_logits", "check_candidates", "closed_form_steps",
     "cumulative_displacement", "effective_baseline", "ev_candidates",
-    "fit_closed_form_baseline", "gi_candidates", "guard_candidates", "recomputed_candidates",
+    "fit_closed_form_baseline", "gi_candidates", "guard_candidates", "logits_from_candidates",
+    "recomputed_candidates",
     "rig_gi_candidates", "rig_terms", "solve_equal_steps", "spacing_gi_candidates",
     "step_uniformity", "summarize_steps",
 ]

@@ -52,6 +52,13 @@ def register(subparsers) -> None:
     p.add_argument("--candidates", default=None,
                    help="JSON file with a list of distances (m); default: the preset's kind "
                         "computed for the training rig")
+    p.add_argument("--learn-candidates", action="store_true",
+                   help="train the candidate list with the network (its ends kept; its own "
+                        "Adam at --candidates-lr); the learned list is logged at each "
+                        "validation, written to RUN/candidates.json and used by eval, predict "
+                        "and export of the run (docs/candidates.md, Learned lists)")
+    p.add_argument("--candidates-lr", type=float, default=1e-2,
+                   help="learning rate of the learned list's logits")
     p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
     p.add_argument("--coordinator", default=None, help="host:port of process 0 (multi-host)")
     p.add_argument("--num-processes", type=int, default=None)
@@ -86,6 +93,7 @@ def run(args) -> int:
         bf16=args.bf16, val_every=args.val_every, val_batches=args.val_batches,
         ckpt_every=args.ckpt_every, keep=args.keep, keep_best=bool(args.val),
         workers=args.workers, augment=args.augment,
+        learn_candidates=args.learn_candidates, candidates_lr=args.candidates_lr,
         candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
     result = train(cfg, args.data, args.out, val=args.val, rig=args.rig,
                    allow_partial=args.allow_partial, check_data=not args.no_data_check,

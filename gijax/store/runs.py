@@ -67,7 +67,8 @@ def load_for_inference(run_dir: str | os.PathLike, which: str = "best"):
     ``which='best'`` takes the best validated checkpoint when there is one and the newest
     periodic checkpoint otherwise; ``'latest'`` always the newest periodic one. An unreadable
     checkpoint is skipped with a warning for the next older one. The model is in eval mode;
-    candidates are the training list, (D,) float64 metres.
+    candidates are the training list, (D,) float64 metres, or for a run that learned its list
+    (``learn_candidates``) the list learned up to that checkpoint.
     """
     from gijax.model import create_model
 
@@ -107,6 +108,12 @@ def load_for_inference(run_dir: str | os.PathLike, which: str = "best"):
             state, _ = out
             nnx.update(model, state["params"], state["rest"])
             model.eval()
-            return model, run.model, np.asarray(run.candidates, np.float64)
+            cand = np.asarray(run.candidates, np.float64)
+            if "cand_logits" in state:
+                from gijax.candidates.parametrisation import candidates_from_logits
+
+                cand = np.asarray(candidates_from_logits(
+                    state["cand_logits"], cand[0], cand[-1]), np.float64)
+            return model, run.model, cand
     raise FileNotFoundError(f"run folder {run_dir} holds no checkpoint yet (the run has not "
                             f"saved trained weights)")

@@ -20,8 +20,10 @@ from gijax.store.configs import CONFIG_FILE
 
 
 def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLike,
-                provenance: dict | None = None) -> Path:
+                provenance: dict | None = None, candidates=None) -> Path:
     """Write ``model``'s variables, a copy of its run's ``config.json`` and the provenance.
+
+    ``candidates`` (a run's learned list) replaces the config's training list in the copy.
 
     The folder is assembled under a temporary name and renamed into place, so an interrupted
     call never leaves a bundle that looks complete. One writer at a time: the lock file sits
@@ -39,7 +41,12 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
         tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
         os.chmod(tmp, 0o755)  # mkdtemp makes it private; a bundle is meant to be shared
         try:
-            shutil.copyfile(config_file, tmp / CONFIG_FILE)
+            if candidates is None:
+                shutil.copyfile(config_file, tmp / CONFIG_FILE)
+            else:
+                doc = json.loads(Path(config_file).read_text())
+                doc["candidates"] = [float(c) for c in np.asarray(candidates, np.float64)]
+                (tmp / CONFIG_FILE).write_text(json.dumps(doc, indent=2) + "\n")
             np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f"
                                             else v for k, v in weights.items()})
             (tmp / PROVENANCE_FILE).write_text(json.dumps(provenance or {}, indent=2) + "\n")
@@ -58,5 +65,5 @@ def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
     from gijax.store.runs import load_for_inference
 
     run_dir = Path(run_dir)
-    model, _, _ = load_for_inference(run_dir, which=which)
-    return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance)
+    model, _, cand = load_for_inference(run_dir, which=which)
+    return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance, candidates=cand)

@@ -50,6 +50,11 @@ class TrainConfig:
         training rig, or a list of distances in metres.
       sample_images: prediction images written per validation.
       augment: training-image augmentation, a ``gijax.data.augment.AUGMENT_PRESETS`` name.
+      learn_candidates: make the candidate list a trainable parameter (its logits,
+        :mod:`gijax.candidates.parametrisation`; the starting list's ends stay), trained by
+        the same loss with its own Adam at ``candidates_lr``; the current list is logged at
+        each validation, written to ``candidates.json`` in the run folder and used by eval /
+        predict / export of the run.
     """
 
     preset: str = "G16VV-cpu"
@@ -78,6 +83,8 @@ class TrainConfig:
     candidates: Optional[list] = None
     sample_images: int = 2
     augment: str = "none"
+    learn_candidates: bool = False
+    candidates_lr: float = 1e-2
 
     def __post_init__(self) -> None:
         def fail(field, expected, found):
@@ -95,6 +102,8 @@ class TrainConfig:
             fail("grad_accum", f"a divisor of batch_size {self.batch_size}", self.grad_accum)
         if not self.lr > 0:
             fail("lr", "a positive number", self.lr)
+        if not self.candidates_lr > 0:
+            fail("candidates_lr", "a positive number", self.candidates_lr)
         if self.clip_norm is not None and not self.clip_norm > 0:
             fail("clip_norm", "a positive number or null", self.clip_norm)
         if self.best_mode not in ("min", "max"):

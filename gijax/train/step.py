@@ -6,7 +6,10 @@ as is:
 * ``params``: the model's ``nnx.Param`` variables (an ``nnx.State``);
 * ``rest``: every other model variable (BatchNorm running statistics, RNG streams);
 * ``opt``: the optax optimiser state;
-* ``step``: int32 scalar, optimiser updates done.
+* ``step``: int32 scalar, optimiser updates done;
+* with a learned candidate list (``TrainConfig.learn_candidates``) also ``cand_logits``, the
+  list's logits (:mod:`gijax.candidates.parametrisation`), and ``cand_opt``, their own Adam
+  state.
 
 Data parallelism: one mesh axis ``'data'`` over all devices of all processes. Batches are
 sharded along their leading axis, the state is replicated; under ``jax.jit`` the gradient mean
@@ -26,9 +29,11 @@ import optax
 from flax import nnx
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
+from gijax.candidates.parametrisation import candidates_from_logits
 from gijax.train.config import TrainConfig
 from gijax.train.losses import model_loss
 
+Array = jax.Array
 DATA_AXIS = "data"
 BATCH_KEYS = ("images", "masks", "distance", "valid")
 
@@ -73,9 +78,19 @@ def load_into_model(model: nnx.Module, params, rest) -> nnx.Module:
     return model
 
 
-def init_state(params, rest, tx: optax.GradientTransformation) -> dict:
-    return {"params": params, "rest": rest, "opt": tx.init(params),
-            "step": jnp.zeros((), jnp.int32)}
+def init_state(params, rest, tx: optax.GradientTransformation, cand_logits=None,
+               tx_cand: optax.GradientTransformation | None = None) -> dict:
+    state = {"params": params, "rest": rest, "opt": tx.init(params),
+             "step": jnp.zeros((), jnp.int32)}
+    if cand_logits is not None:
+        logits = jnp.asarray(cand_logits, jnp.float32)
+        state.update(cand_logits=logits, cand_opt=tx_cand.init(logits))
+    return state
+
+
+def state_candidates(state: dict, d_range) -> Array:
+    """The learned list (N,) metres of a state with ``cand_logits`` (``d_range`` = its ends)."""
+    return candidates_from_logits(state["cand_logits"], d_range[0], d_range[1])
 
 
 def _cast_floats(tree, dtype):
@@ -84,8 +99,16 @@ def _cast_floats(tree, dtype):
 
 
 def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
-                     grad_accum: int = 1, bf16: bool = False) -> Callable:
+                     grad_accum: int = 1, bf16: bool = False,
+                     tx_cand: optax.GradientTransformation | None = None,
+                     d_range=None) -> Callable:
     """``step(state, batch, rig, candidates) -> (state, {'loss', 'grad_norm'})`` (not jitted).
+
+    With ``tx_cand`` the candidate list is learned: ``candidates`` is ignored, the list comes
+    from ``state['cand_logits']`` (ends ``d_range``), and its logits are updated by ``tx_cand``
+    from the gradient of the same loss, which reaches the list through the sweep grids and the
+    soft-argmax (the label side of the loss, its clamping and two-hot target, is held at the
+    current list: moving candidates must not move the target).
 
     ``batch`` holds ``images`` (B, N, Hs, Ws, 3), ``masks`` (B, N, Hs, Ws), ``distance``
     (B, H, W) metres and ``valid`` (B, H, W). With ``grad_accum = k`` the batch is cut into k
@@ -94,7 +117,14 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
     BatchNorm running statistics are updated by each micro-batch in turn. With ``bf16`` the
     forward and backward passes run in bfloat16; parameters, optimiser and loss stay float32.
     """
-    def forward(params, rest, batch, rig, candidates):
+    learn = tx_cand is not None
+
+    def forward(trainable, rest, batch, rig, candidates):
+        if learn:
+            params, logits = trainable
+            candidates = candidates_from_logits(logits, d_range[0], d_range[1])
+        else:
+            params = trainable
         # Fresh Variable objects at this trace level: nnx only lets a module mutate variables
         # (BatchNorm statistics) created inside the transformation that runs it.
         rest = jax.tree.map(lambda x: x, rest)
@@ -103,7 +133,8 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
         out = model(images, batch["masks"], rig, candidates.astype(images.dtype))
         out = {k: v.astype(jnp.float32) if jnp.issubdtype(v.dtype, jnp.floating) else v
                for k, v in out.items()}
-        loss = model_loss(loss_kind, out, batch["distance"], batch["valid"], candidates)
+        loss = model_loss(loss_kind, out, batch["distance"], batch["valid"],
+                          jax.lax.stop_gradient(candidates))
         _, _, new_rest = nnx.split(model, nnx.Param, ...)
         return loss, jax.tree.map(lambda new, old: new.astype(old.dtype), new_rest, rest)
 
@@ -111,8 +142,9 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
 
     def step(state, batch, rig, candidates):
         params, rest = state["params"], state["rest"]
+        trainable = (params, state["cand_logits"]) if learn else params
         if grad_accum == 1:
-            (loss, rest), grads = grad_fn(params, rest, batch, rig, candidates)
+            (loss, rest), grads = grad_fn(trainable, rest, batch, rig, candidates)
         else:
             def micro(x):
                 m = x.shape[0] // grad_accum
@@ -122,18 +154,27 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
 
             def body(carry, mb):
                 rest_c, g_sum, l_sum = carry
-                (l, rest_c), g = grad_fn(params, rest_c, mb, rig, candidates)
+                (l, rest_c), g = grad_fn(trainable, rest_c, mb, rig, candidates)
                 return (rest_c, jax.tree.map(jnp.add, g_sum, g), l_sum + l), None
 
-            zeros = jax.tree.map(jnp.zeros_like, params)
+            zeros = jax.tree.map(jnp.zeros_like, trainable)
             (rest, g_sum, l_sum), _ = jax.lax.scan(body, (rest, zeros, jnp.zeros(())),
                                                    micro_batches)
             grads = jax.tree.map(lambda g: g / grad_accum, g_sum)
             loss = l_sum / grad_accum
+        info = {"loss": loss}
+        new_state = dict(state)
+        if learn:
+            grads, g_cand = grads
+            logits = state["cand_logits"]
+            upd, new_state["cand_opt"] = tx_cand.update(g_cand, state["cand_opt"], logits)
+            new_state["cand_logits"] = optax.apply_updates(logits, upd)
+            info["cand_grad_norm"] = optax.tree.norm(g_cand)
         updates, opt = tx.update(grads, state["opt"], params)
         params = optax.apply_updates(params, updates)
-        new_state = {"params": params, "rest": rest, "opt": opt, "step": state["step"] + 1}
-        return new_state, {"loss": loss, "grad_norm": optax.tree.norm(grads)}
+        new_state.update(params=params, rest=rest, opt=opt, step=state["step"] + 1)
+        info["grad_norm"] = optax.tree.norm(grads)
+        return new_state, info
 
     return step
 

@@ -21,7 +21,9 @@ from typing import Callable, Iterable, Optional
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
+from gijax.candidates.parametrisation import logits_from_candidates
 from gijax.geometry.rig import Rig
 from gijax.io.lock import FolderLock
 from gijax.train import step as S
@@ -31,6 +33,8 @@ from gijax.train.config import TrainConfig, load_run_config, save_run_config
 from gijax.train.metrics import batch_sums, summarize
 
 METRICS_FILE = "metrics.jsonl"
+# The learned candidate list of a run with TrainConfig.learn_candidates (a --candidates FILE).
+LEARNED_FILE = "candidates.json"
 
 
 def init_distributed(coordinator: Optional[str], num_processes: Optional[int],
@@ -136,7 +140,12 @@ class Trainer:
             self.train_def, self.eval_def, params, rest = S.split_model(model)
             self.tx = S.make_optimizer(config)
             self.lr_fn = S.learning_rate_schedule(config)
-            state = S.init_state(params, rest, self.tx)
+            # A learned list keeps the training list's ends; its logits get their own Adam.
+            self.d_range = (float(self.candidates[0]), float(self.candidates[-1]))
+            self.tx_cand = optax.adam(config.candidates_lr) if config.learn_candidates else None
+            logits0 = (logits_from_candidates(jnp.asarray(self.candidates, jnp.float32))
+                       if config.learn_candidates else None)
+            state = S.init_state(params, rest, self.tx, logits0, self.tx_cand)
             self.store = CheckpointStore(self.run_dir, config.keep,
                                          config.best_metric if config.keep_best else None,
                                          config.best_mode)
@@ -150,9 +159,11 @@ class Trainer:
                 self.start_step, self.stream_state = int(meta["step"]), meta.get("stream")
             self._step = S.jit_train_step(
                 S.build_train_step(self.train_def, self.tx, self.mc.loss, config.grad_accum,
-                                   config.bf16), self.mesh)
+                                   config.bf16, self.tx_cand, self.d_range), self.mesh)
             self._eval = jax.jit(S.build_eval_forward(self.eval_def))
             self._cand = jnp.asarray(self.candidates, jnp.float32)
+            if config.learn_candidates:
+                self._sync_candidates()
             self.history: list[dict] = []
             self._tb = None
             self._stream = None
@@ -180,6 +191,10 @@ class Trainer:
             if dataclasses.replace(old_mc, conv3d=self.mc.conv3d) != self.mc:
                 raise ValueError(f"run folder {self.run_dir} was trained with another network "
                                  f"configuration ({old_mc}); this one is {self.mc}")
+            if old_cfg.learn_candidates != self.config.learn_candidates:
+                say = "learned" if old_cfg.learn_candidates else "fixed"
+                raise ValueError(f"run folder {self.run_dir} was trained with a {say} candidate "
+                                 f"list; resume it with the same --learn-candidates setting")
             cand = np.asarray(old_cand, np.float64)
             if self.config.candidates is not None and not np.allclose(self.config.candidates, cand):
                 raise ValueError(f"run folder {self.run_dir} was trained with candidates "
@@ -200,10 +215,30 @@ class Trainer:
                              f"{len(meta.get('candidates', []))} candidates; this configuration "
                              f"has {self.mc.num_candidates}")
 
+    def _sync_candidates(self) -> None:
+        """With a learned list: the current list from the state, as numpy and on device."""
+        logits = np.asarray(self.state["cand_logits"].addressable_data(0))
+        self._cand = S.state_candidates({"cand_logits": jnp.asarray(logits)}, self.d_range)
+        self.current_candidates = np.asarray(self._cand, np.float64)
+
+    def _write_candidates(self, step: int) -> None:
+        """candidates.json: the learned list now (and the list it started from)."""
+        if not self.is_main:
+            return
+        from gijax.io.paths import write_text_atomic
+
+        doc = {"step": step, "candidates": self.current_candidates.tolist(),
+               "initial": [float(c) for c in self.candidates],
+               "learned": True}
+        write_text_atomic(self.run_dir / LEARNED_FILE, json.dumps(doc, indent=2))
+
     def _meta(self, step: int, stream_state) -> dict:
-        return {"step": step, "preset": self.config.preset,
+        meta = {"step": step, "preset": self.config.preset,
                 "candidates": [float(c) for c in self.candidates], "stream": stream_state,
                 "time": time.time()}
+        if self.config.learn_candidates:
+            meta["learned_candidates"] = self.current_candidates.tolist()
+        return meta
 
     # ----------------------------------------------------------------- logging
     def _log(self, record: dict) -> None:
@@ -317,11 +352,19 @@ class Trainer:
                 if bar is not None:
                     bar.update(1)
                 last = step == total
-                if (cfg.ckpt_every and step % cfg.ckpt_every == 0) or last:
+                saving = (cfg.ckpt_every and step % cfg.ckpt_every == 0) or last
+                validating = ((cfg.val_every and step % cfg.val_every == 0)
+                              or (last and self.make_val_batches))
+                if cfg.learn_candidates and (saving or validating):
+                    self._sync_candidates()
+                    self._write_candidates(step)
+                if saving:
                     self.store.save(step, self.state, self._meta(step, stream.state()))
-                if (cfg.val_every and step % cfg.val_every == 0) or (last and self.make_val_batches):
+                if validating:
                     metrics = self.validate(step)
                     if metrics is not None:
+                        if cfg.learn_candidates:
+                            metrics = dict(metrics, candidates=self.current_candidates.tolist())
                         self._log({"step": step, "split": "val", **metrics})
                         if cfg.keep_best:
                             self.store.maybe_save_best(step, self.state,

@@ -1,0 +1,298 @@
+"""Adapting a trained model's candidate list to a rig, the network frozen.
+
+The candidates are data, not weights (:mod:`gijax.model`): a model runs with any list of its
+length, and its outputs are differentiable in that list through the sweep grids and the
+soft-argmax. :func:`adapt_candidates` optimises the list for one rig by Adam on the logits of
+:mod:`gijax.candidates.parametrisation` (so every step is a valid list with the training list's
+ends), on batches of that rig's data, by one of two losses:
+
+* ``'supervised'``: the smooth L1 loss on inverse distance against the labels
+  (:func:`gijax.train.losses.smooth_l1_loss`, the release's units), whatever loss the model
+  was trained with: the error the tables report is the regressed inverse distance;
+* ``'photometric'``: no labels (so it also serves real captures): each predicted panorama point
+  is projected into every camera's surrogate image and the cameras' colours there are compared
+  (:func:`photometric_loss`, masks respected). The right distance makes them agree.
+
+The model stays in eval mode (BatchNorm running statistics) and is never changed. Pure pieces
+(:func:`photometric_loss`, :func:`adaptation_loss`) are traceable; :func:`adapt_candidates` is
+the loop at the edge: progress bar, atomic checkpoints, resume.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from typing import Callable, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx
+
+from gijax.candidates.parametrisation import candidates_from_logits, logits_from_candidates
+from gijax.geometry.panorama import Panorama, direction_to_pixel
+from gijax.geometry.panorama_frame import panorama_rays
+from gijax.geometry.rig import Rig
+from gijax.model import OmniStereoNet, model_panorama
+from gijax.numerics import safe_sqrt
+from gijax.sampling import bilinear_sample
+from gijax.train.losses import smooth_l1_loss
+
+Array = jax.Array
+
+LOSSES = ("supervised", "photometric")
+# Charbonnier epsilon of the photometric difference (colours in [0, 1]).
+_PHOTO_EPS = 1e-3
+
+
+def photometric_loss(surrogates: Array, masks: Array, rig: Rig, inv_distance: Array,
+                     pano: Panorama, surrogate_pano: Panorama) -> Array:
+    """Colour disagreement between the cameras at the predicted panorama points (scalar).
+
+    Args:
+      surrogates: (B, N, Hs, Ws, 3) surrogate images in [0, 1] (each camera's hemisphere).
+      masks: (B, N, Hs, Ws) their masks (1 = sees the world).
+      rig: the rig (at the model's size; the panorama follows its panorama frame).
+      inv_distance: (B, H, W) predicted inverse distance, 1/m, on ``pano``.
+      pano, surrogate_pano: the output panorama and the surrogate images' hemisphere.
+
+    Each pixel's point ``reference + ray / inv_distance`` is sampled (bilinearly) in every
+    camera whose hemisphere holds it, weighted by the sampled mask; the loss is the weighted
+    mean Charbonnier distance of those colours to their weighted mean, averaged over pixels
+    seen by at least two cameras' worth of weight (0 when there is none).
+    """
+    dtype = surrogates.dtype
+    rays = panorama_rays(rig, pano, dtype)                               # (H, W, 3)
+    dist = 1.0 / jnp.maximum(inv_distance.astype(dtype), 1e-6)
+    pts = rig.reference.astype(dtype) + dist[..., None] * rays            # (B, H, W, 3)
+
+    def one_camera(img, mask, rot, trans):
+        # img (B, Hs, Ws, 3), mask (B, Hs, Ws): every sample's view from this camera.
+        pc = (pts - trans.astype(dtype)) @ rot.astype(dtype)
+        px, in_front = direction_to_pixel(surrogate_pano, pc)
+        packed = jnp.concatenate([img, mask[..., None].astype(dtype)], -1)
+        vals, ok = jax.vmap(bilinear_sample)(packed, px, in_front)
+        weight = vals[..., 3] * ok.astype(dtype)
+        return vals[..., :3], weight
+
+    cols, wts = jax.vmap(one_camera, in_axes=(1, 1, 0, 0))(
+        surrogates, masks, rig.rotations, rig.translations)                # (N, B, H, W, .)
+    total = jnp.sum(wts, axis=0)                                          # (B, H, W)
+    mean = jnp.sum(cols * wts[..., None], axis=0) / jnp.maximum(total, 1e-6)[..., None]
+    diff = safe_sqrt(jnp.sum((cols - mean) ** 2, axis=-1) + _PHOTO_EPS**2)  # (N, B, H, W)
+    per_pixel = jnp.sum(diff * wts, axis=0) / jnp.maximum(total, 1e-6)
+    seen = (total >= 1.5).astype(dtype)
+    return jnp.sum(per_pixel * seen) / jnp.maximum(jnp.sum(seen), 1.0)
+
+
+def adaptation_loss(kind: str, model: OmniStereoNet, logits: Array, batch: dict, rig: Rig,
+                    d_min: float, d_max: float) -> Array:
+    """The loss of ``kind`` ('supervised' or 'photometric') for the list of ``logits`` on one
+    batch (the loader's: surrogate ``images``, ``masks``, and ``distance`` / ``valid`` labels
+    for the supervised loss), ``model`` in eval mode on its own panorama; traceable."""
+    cand = candidates_from_logits(logits, d_min, d_max)
+    images = batch["images"]
+    out = model(images, batch["masks"], rig, cand.astype(images.dtype))
+    if kind == "supervised":
+        return smooth_l1_loss(out["inv_distance"], batch["distance"], batch["valid"], cand)
+    if kind == "photometric":
+        cfg = model.config
+        return photometric_loss(images, batch["masks"], rig, out["inv_distance"],
+                                model_panorama(cfg), Panorama.hemisphere(*images.shape[2:4]))
+    raise ValueError(f"adaptation loss {kind!r}; expected one of {LOSSES}")
+
+
+@dataclasses.dataclass(frozen=True)
+class AdaptConfig:
+    """How to adapt: ``loss`` ('supervised' or 'photometric'), Adam steps at learning rate
+    ``lr`` on the logits, ``batch_size`` samples per step, ``seed`` (data order), a checkpoint
+    every ``checkpoint_every`` steps."""
+
+    loss: str = "supervised"
+    steps: int = 200
+    lr: float = 0.05
+    batch_size: int = 4
+    seed: int = 0
+    checkpoint_every: int = 25
+
+    def __post_init__(self):
+        if self.loss not in LOSSES:
+            raise ValueError(f"AdaptConfig.loss {self.loss!r}; expected one of {LOSSES}")
+        for field in ("steps", "batch_size", "checkpoint_every"):
+            if int(getattr(self, field)) < 1:
+                raise ValueError(f"AdaptConfig.{field} must be >= 1; found "
+                                 f"{getattr(self, field)}")
+        if not self.lr > 0:
+            raise ValueError(f"AdaptConfig.lr must be > 0; found {self.lr}")
+
+
+@dataclasses.dataclass
+class AdaptResult:
+    """``candidates`` (N,) metres after adaptation, ``initial`` (N,), ``history`` of
+    ``{'step', 'loss'}`` (the loss of each step's batch before its update) and the files
+    written."""
+
+    candidates: np.ndarray
+    initial: np.ndarray
+    history: list
+    files: dict
+
+
+def state_folder(out_file) -> Path:
+    """The folder beside ``out_file`` that holds the adaptation's checkpoint and curve."""
+    out = Path(out_file)
+    return out.with_name(out.stem + ".adapt")
+
+
+def adapt_candidates(model: OmniStereoNet, rig: Rig, make_batches: Callable, initial,
+                     config: AdaptConfig, out_file: str | os.PathLike | None = None, *,
+                     record: Optional[dict] = None, progress: bool = True,
+                     log: Optional[Callable[[str], None]] = None) -> AdaptResult:
+    """Optimise ``model``'s candidate list for ``rig``, the network frozen.
+
+    Args:
+      model: a trained :class:`OmniStereoNet` (not modified; run in eval mode).
+      rig: the rig the batches show, at the model's image size (its panorama frame is used).
+      make_batches: ``make(state | None) -> loader`` yielding the training loader's batches
+        (surrogate images, masks, labels) forever, with ``state()`` to resume from
+        (:func:`gijax.train.sources.dataset_stream_factory`).
+      initial: the starting list (N,) metres, N = the model's candidate count; its ends stay.
+      config: :class:`AdaptConfig`.
+      out_file: the list's JSON file (``{"candidates": [...], ...}``, read by every
+        ``--candidates FILE``); the checkpoint, the loss curve (CSV and PNG) and the record
+        go to :func:`state_folder` beside it. Rerunning with the same settings resumes.
+      record: extra provenance stored in the record (command, model, data).
+      progress, log: progress bar, and a callback for one-line notes.
+    """
+    from tqdm import tqdm
+
+    from gijax.io.paths import atomic_path, write_text_atomic
+
+    say = log or (lambda _line: None)
+    cfg = model.config
+    initial = np.asarray(initial, np.float64)
+    if initial.shape != (cfg.num_candidates,):
+        raise ValueError(f"model {cfg.name!r} needs {cfg.num_candidates} candidates; the "
+                         f"initial list has shape {initial.shape}")
+    d_min, d_max = float(initial[0]), float(initial[-1])
+    logits = logits_from_candidates(jnp.asarray(initial, jnp.float32), d_min, d_max)
+    tx = optax.adam(config.lr)
+    opt = tx.init(logits)
+    step0, history, stream_state = 0, [], None
+    folder = state_folder(out_file) if out_file is not None else None
+    settings = {"config": dataclasses.asdict(config), "initial": initial.tolist(),
+                "model": cfg.name}
+    if folder is not None and (folder / "state.npz").is_file():
+        saved = json.loads((folder / "record.json").read_text())
+        if saved.get("settings") != settings:
+            raise ValueError(f"{folder} holds an adaptation with other settings "
+                             f"({saved.get('settings')}); delete it or choose another --out")
+        with np.load(folder / "state.npz") as z:
+            logits = jnp.asarray(z["logits"])
+            opt = jax.tree.unflatten(jax.tree.structure(opt),
+                                     [jnp.asarray(z[f"opt{i}"]) for i in
+                                      range(len(jax.tree.leaves(opt)))])
+        step0 = int(saved["step"])
+        history = saved["history"]
+        stream_state = saved.get("stream")
+        say(f"{folder}: resuming after step {step0}")
+
+    graphdef, state = nnx.split(model)
+    frozen = nnx.merge(graphdef, state)
+    frozen.eval()
+    eval_def, params, rest = nnx.split(frozen, nnx.Param, ...)
+
+    def loss_fn(lg, batch):
+        net = nnx.merge(eval_def, params, jax.tree.map(lambda x: x, rest))
+        return adaptation_loss(config.loss, net, lg, batch, rig, d_min, d_max)
+
+    @jax.jit
+    def step_fn(lg, opt_state, batch):
+        loss, grad = jax.value_and_grad(loss_fn)(lg, batch)
+        updates, opt_state = tx.update(grad, opt_state, lg)
+        return optax.apply_updates(lg, updates), opt_state, loss
+
+    def save(step: int, loader) -> None:
+        if folder is None:
+            return
+        folder.mkdir(parents=True, exist_ok=True)
+        arrays = {"logits": np.asarray(logits)}
+        arrays.update({f"opt{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(opt))})
+        with atomic_path(folder / "state.npz") as tmp:
+            np.savez(tmp, **arrays)
+        doc = {"settings": settings, "step": step, "history": history,
+               "stream": loader.state() if loader is not None else None,
+               "record": record or {}}
+        write_text_atomic(folder / "record.json", json.dumps(doc, indent=2))
+        write_text_atomic(folder / "curve.csv", "step,loss\n" + "".join(
+            f"{h['step']},{h['loss']:.8g}\n" for h in history))
+
+    loader = make_batches(stream_state) if step0 < config.steps else None
+    try:
+        with tqdm(total=config.steps, initial=step0, desc=f"adapt ({config.loss})",
+                  unit="step", disable=not progress) as bar:
+            for step in range(step0, config.steps):
+                batch = next(loader)
+                feed = {k: jnp.asarray(batch[k]) for k in ("images", "masks", "distance",
+                                                          "valid")}
+                logits, opt, loss = step_fn(logits, opt, feed)
+                loss = float(loss)
+                if not math.isfinite(loss):
+                    raise FloatingPointError(f"adaptation loss is {loss} at step {step}")
+                history.append({"step": step, "loss": loss})
+                bar.set_postfix(loss=f"{loss:.4f}")
+                bar.update(1)
+                if (step + 1) % config.checkpoint_every == 0 or step + 1 == config.steps:
+                    save(step + 1, loader)
+    finally:
+        if loader is not None and hasattr(loader, "close"):
+            loader.close()
+    final = np.asarray(candidates_from_logits(logits, d_min, d_max), np.float64)
+    files = {}
+    if out_file is not None:
+        out = Path(out_file)
+        doc = {"candidates": final.tolist(), "initial": initial.tolist(),
+               "loss": config.loss, "steps": config.steps,
+               "final_loss": history[-1]["loss"] if history else None,
+               "state": str(folder), **(record or {})}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(out, json.dumps(doc, indent=2))
+        files["list"] = str(out)
+        files["state"] = str(folder)
+        if history:
+            files["curve"] = _plot_curve(folder / "curve.png", history, initial, final,
+                                         config.loss)
+    return AdaptResult(final, initial, history, files)
+
+
+def _plot_curve(path: Path, history: list, initial: np.ndarray, final: np.ndarray,
+                kind: str) -> str:
+    """Loss per step, and the two lists in inverse distance."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gijax.io.paths import atomic_path
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
+    steps = [h["step"] for h in history]
+    a.plot(steps, [h["loss"] for h in history], lw=0.8)
+    a.set_xlabel("step")
+    a.set_ylabel(f"{kind} loss")
+    a.set_title("adaptation loss (each step's batch)")
+    for lst, label, mark in ((initial, "initial", "o"), (final, "adapted", "x")):
+        b.plot(1.0 / lst, np.arange(len(lst)), mark, label=label)
+    b.set_xlabel("inverse distance (1/m)")
+    b.set_ylabel("candidate index")
+    b.legend()
+    b.set_title("candidate lists")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return str(path)
