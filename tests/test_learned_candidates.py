@@ -89,7 +89,7 @@ def tiny_model():
 
 
 @pytest.mark.parametrize("kind", ["supervised", "photometric"])
-def test_loss_gradient_in_the_list_matches_finite_differences(tiny_model, kind):
+def test_loss_gradient_in_the_list_matches_finite_differences(tiny_model, kind, quick_compiles):
     with jax.enable_x64(True):
         graphdef, state = nnx.split(tiny_model)
         model = nnx.merge(graphdef, jax.tree.map(
@@ -102,10 +102,12 @@ def test_loss_gradient_in_the_list_matches_finite_differences(tiny_model, kind):
         logits = logits_from_candidates(jnp.asarray(np.asarray(gi_candidates(8, 0.5, 100.0),
                                                                np.float64)))
 
-        def f(lg):
-            return adaptation_loss(kind, model, lg, batch, rig, 0.5, 100.0)
-
-        grad = jax.grad(f)(logits)
+        graphdef, state = nnx.split(model)
+        # One program for the loss and one for its gradient (eager dispatch of a whole network
+        # op by op is what would take the time here).
+        f = jax.jit(lambda lg: adaptation_loss(kind, nnx.merge(graphdef, state), lg, batch, rig,
+                                               0.5, 100.0))
+        grad = jax.jit(jax.grad(f))(logits)
         assert np.all(np.isfinite(np.asarray(grad))) and float(jnp.abs(grad).max()) > 0
         direction = jnp.asarray(np.random.default_rng(5).normal(size=logits.shape))
         eps = 1e-6
@@ -141,7 +143,8 @@ class FixedBatches:
         pass
 
 
-def test_adaptation_moves_a_crowded_list_to_a_lower_loss_and_resumes(tiny_model, tmp_path):
+def test_adaptation_moves_a_crowded_list_to_a_lower_loss_and_resumes(tiny_model, tmp_path,
+                                                                     quick_compiles):
     """Seven of eight candidates crowded near d_max while the scene is 0.6-1.5 m away: the
     soft-argmax (a probability-weighted mean of inverse candidates, at most 1/60 m^-1 from the
     seven) predicts far too far unless the network puts most of its mass on the one near
@@ -150,13 +153,15 @@ def test_adaptation_moves_a_crowded_list_to_a_lower_loss_and_resumes(tiny_model,
     batches = [{k: np.asarray(v, np.float32) if v.dtype != bool else v
                 for k, v in _batch(s, 2, 0.6, 1.5).items()} for s in range(2)]
     crowded = np.concatenate([[0.5], np.linspace(60.0, 100.0, 7)])
-    cfg = AdaptConfig(loss="supervised", steps=12, lr=0.2, batch_size=2, checkpoint_every=4)
+    cfg = AdaptConfig(loss="supervised", steps=8, lr=0.3, batch_size=2, checkpoint_every=2)
+    graphdef, state = nnx.split(tiny_model)
+    loss_jit = jax.jit(lambda st, lg, b: adaptation_loss(
+        "supervised", nnx.merge(graphdef, st), lg, b, rig, 0.5, 100.0))
 
     def loss_of(cand):
         lg = logits_from_candidates(jnp.asarray(cand, jnp.float32))
-        return np.mean([float(adaptation_loss("supervised", tiny_model, lg,
-                                              {k: jnp.asarray(v) for k, v in b.items()},
-                                              rig, 0.5, 100.0)) for b in batches])
+        return np.mean([float(loss_jit(state, lg, {k: jnp.asarray(v) for k, v in b.items()}))
+                        for b in batches])
 
     full = adapt_candidates(tiny_model, rig, lambda s: FixedBatches(batches, s), crowded, cfg,
                             tmp_path / "full.json", progress=False)
@@ -166,10 +171,10 @@ def test_adaptation_moves_a_crowded_list_to_a_lower_loss_and_resumes(tiny_model,
     # The list moved towards the near end: its median candidate came closer.
     assert np.median(full.candidates) < 0.5 * np.median(crowded)
 
-    # Interrupted after 6 batches (checkpoint at 4), then the same call again: same list.
+    # Interrupted after 5 batches (checkpoint at 4), then the same call again: same list.
     out = tmp_path / "cut.json"
     with pytest.raises(KeyboardInterrupt):
-        adapt_candidates(tiny_model, rig, lambda s: FixedBatches(batches, s, fail_after=6),
+        adapt_candidates(tiny_model, rig, lambda s: FixedBatches(batches, s, fail_after=5),
                          crowded, cfg, out, progress=False)
     assert not out.exists()
     record = json.loads((tmp_path / "cut.adapt" / "record.json").read_text())
@@ -184,28 +189,47 @@ def test_adaptation_moves_a_crowded_list_to_a_lower_loss_and_resumes(tiny_model,
     assert (tmp_path / "cut.adapt" / "curve.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="other settings"):
         adapt_candidates(tiny_model, rig, lambda s: FixedBatches(batches, s), crowded,
-                         AdaptConfig(loss="supervised", steps=12, lr=0.1, batch_size=2), out,
+                         AdaptConfig(loss="supervised", steps=8, lr=0.1, batch_size=2), out,
                          progress=False)
 
 
-def test_cli_adapts_the_bundled_model_photometrically(tmp_path, capsys):
+def test_cli_adapts_a_bundle_photometrically(tiny_model, tmp_path, capsys):
+    """The command on a bundle and a dataset of its rig (synthetic images, no rendering)."""
     from gijax.cli import main
-    from gijax.data.rendered import render_dataset
+    from gijax.data import write_dataset
     from gijax.geometry.panorama import Panorama
+    from gijax.store.configs import CONFIG_FILE, run_config_document
+    from gijax.train.bundle import save_bundle
 
-    render_dataset(builtin_rig("paper-train"), tmp_path / "data", 2, seed=9, image_scale=0.25,
-                   pano=Panorama.hemisphere(32, 128), progress=False)
+    cand = np.asarray(gi_candidates(8, 0.5, 100.0), np.float64)
+    (tmp_path / CONFIG_FILE).write_text(json.dumps(run_config_document(
+        {"seed": 3}, TINY, cand, "paper-train")))
+    bundle = save_bundle(tiny_model, tmp_path / CONFIG_FILE, tmp_path / "bundle")
+    rig = scale_rig(builtin_rig("paper-train"), TINY.image_scale)
+    rng = np.random.default_rng(0)
+    h, w = rig.cameras[0].height, rig.cameras[0].width
+    write_dataset(tmp_path / "data", lambda i: {
+        "images": rng.integers(0, 256, (3, h, w, 3), dtype=np.uint8),
+        "distances": np.full((3, h, w), 2.0, np.float32), "masks": np.ones((3, h, w), np.uint8),
+        "pano_distance": np.full(TINY.output_hw, 2.0, np.float32)},
+        rig, Panorama.hemisphere(*TINY.output_hw), num_samples=2)
     out = tmp_path / "list.json"
-    rc = main(["adapt-candidates", "--ckpt", "G16VV-cpu", "--data", str(tmp_path / "data"),
+    rc = main(["adapt-candidates", "--ckpt", str(bundle), "--data", str(tmp_path / "data"),
                "--out", str(out), "--loss", "photometric", "--steps", "2", "--batch", "1",
                "--workers", "0"])
     printed = capsys.readouterr().out
     assert rc == 0, printed
     assert "start: training list" in printed and "adapted" in printed
     doc = json.loads(out.read_text())
-    assert len(doc["candidates"]) == 16 and doc["loss"] == "photometric"
-    assert "gijax adapt-candidates" in doc["command"] and "--loss photometric" in doc["command"]
+    assert len(doc["candidates"]) == 8 and doc["loss"] == "photometric"
+    assert doc["command"].startswith("gijax adapt-candidates") and "--loss photometric" in \
+        doc["command"]
     # The list file is a candidate file for every command.
     from gijax.candidates.spec import read_candidate_file
 
     np.testing.assert_allclose(read_candidate_file(out), doc["candidates"])
+    # A label panorama of another size than the model's output is refused, naming both.
+    rc = main(["adapt-candidates", "--ckpt", "G16VV-cpu", "--data", str(tmp_path / "data"),
+               "--out", str(tmp_path / "other.json")])
+    assert rc == 1 and "16 x 64 panoramas but model 'G16VV-cpu' outputs 32 x 128" in \
+        capsys.readouterr().err

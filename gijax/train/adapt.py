@@ -205,16 +205,10 @@ def adapt_candidates(model: OmniStereoNet, rig: Rig, make_batches: Callable, ini
     frozen = nnx.merge(graphdef, state)
     frozen.eval()
     eval_def, params, rest = nnx.split(frozen, nnx.Param, ...)
+    compiled = _adapt_step(eval_def, config.loss, d_min, d_max, config.lr)
 
-    def loss_fn(lg, batch):
-        net = nnx.merge(eval_def, params, jax.tree.map(lambda x: x, rest))
-        return adaptation_loss(config.loss, net, lg, batch, rig, d_min, d_max)
-
-    @jax.jit
     def step_fn(lg, opt_state, batch):
-        loss, grad = jax.value_and_grad(loss_fn)(lg, batch)
-        updates, opt_state = tx.update(grad, opt_state, lg)
-        return optax.apply_updates(lg, updates), opt_state, loss
+        return compiled(params, rest, rig, lg, opt_state, batch)
 
     def save(step: int, loader) -> None:
         if folder is None:
@@ -267,6 +261,30 @@ def adapt_candidates(model: OmniStereoNet, rig: Rig, make_batches: Callable, ini
             files["curve"] = _plot_curve(folder / "curve.png", history, initial, final,
                                          config.loss)
     return AdaptResult(final, initial, history, files)
+
+
+_STEPS: dict = {}
+
+
+def _adapt_step(eval_def, kind: str, d_min: float, d_max: float, lr: float):
+    """The jitted Adam step on the logits, one per (network, loss, range, rate) in a process:
+    a resumed or repeated adaptation (another rig, another list) compiles nothing new."""
+    key = (eval_def, kind, d_min, d_max, lr)
+    if key not in _STEPS:
+        tx = optax.adam(lr)
+
+        @jax.jit
+        def step(params, rest, rig, logits, opt_state, batch):
+            def loss_fn(lg):
+                net = nnx.merge(eval_def, params, jax.tree.map(lambda x: x, rest))
+                return adaptation_loss(kind, net, lg, batch, rig, d_min, d_max)
+
+            loss, grad = jax.value_and_grad(loss_fn)(logits)
+            updates, opt_state = tx.update(grad, opt_state, logits)
+            return optax.apply_updates(logits, updates), opt_state, loss
+
+        _STEPS[key] = step
+    return _STEPS[key]
 
 
 def _plot_curve(path: Path, history: list, initial: np.ndarray, final: np.ndarray,
