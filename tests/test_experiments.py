@@ -1,4 +1,5 @@
-"""The paper-table experiments: both scripts end to end at the smoke scale, resume, claims, metrics.
+"""The experiments: the paper-table scripts and the learned-candidates script end to end at the
+smoke scale, resume, claims, metrics.
 
 The smoke scale checks the pipeline (data -> training -> evaluation -> tables, figures and
 claims), not the paper's claims: its models are tiny and barely trained.
@@ -11,6 +12,7 @@ import time
 from pathlib import Path
 
 import cv2
+import jax
 import numpy as np
 import pytest
 
@@ -18,7 +20,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments import claims, evaluation, reporting, scales, workfolder  # noqa: E402
-from experiments import new_layout, same_layout  # noqa: E402
+from experiments import learned_candidates, new_layout, same_layout  # noqa: E402
 
 PROVENANCE_FIELDS = ("command", "seed", "git_revision", "durations_s", "machine", "scale",
                      "datasets", "data_seeds")
@@ -174,6 +176,146 @@ def test_held_out_check_rejects_shared_seeds(smoke):
         workfolder.check_held_out(smoke["work"], ["train"])
 
 
+@pytest.fixture(scope="module")
+def learned(smoke):
+    """learned_candidates.py at --scale smoke in the smoke work folder (its G16VV run, datasets
+    and cached evaluations reused), then again (the resume). XLA's optimisation passes are off
+    for it, as in conftest's ``quick_compiles``: these checks do not depend on them and they
+    dominate the compile time of its trainings and adaptations."""
+    out = smoke["work"].parent / "out" / "learned"
+    argv = ["--scale", "smoke", "--work", str(smoke["work"]), "--out", str(out)]
+    docs, seconds = {}, {}
+    previous = jax.config.read("jax_disable_most_optimizations")
+    jax.config.update("jax_disable_most_optimizations", True)
+    try:
+        for rnd in ("first", "second"):
+            t0 = time.perf_counter()
+            assert learned_candidates.main(argv) == 0
+            seconds[rnd] = time.perf_counter() - t0
+            docs[rnd] = json.loads(out.with_suffix(".json").read_text())
+    finally:
+        jax.config.update("jax_disable_most_optimizations", previous)
+    print("learned_candidates smoke wall seconds:", {k: round(v, 1) for k, v in seconds.items()})
+    return {"out": out, "docs": docs, "seconds": seconds}
+
+
+LISTS_NEW_RIG = [("fixed list", lst) for lst in ("train", "spacing", "rig", "supervised",
+                                                  "photometric")] + [("learned list", "learned")]
+
+
+@pytest.mark.slow
+def test_learned_candidates_table(learned, smoke):
+    doc = learned["docs"]["first"]
+    keys = [(r["layout"], r["training"], r["list"]) for r in doc["rows"]]
+    assert keys == ([("paper-test1", "fixed list", "train"), ("paper-test1", "learned list",
+                                                              "learned")]
+                    + [(rig, *k) for rig in ("paper-test2", "paper-test3", "ring5-0.5m")
+                       for k in LISTS_NEW_RIG])
+    for r in doc["rows"]:
+        _check_metrics({**r, "model": f"{r['layout']}/{r['list']}"})
+    by = dict(zip(keys, doc["rows"]))
+    # The fixed-list model is same_layout's run, and its training, 'spacing' and 'rig'
+    # evaluations are the ones same_layout.py and new_layout.py cached.
+    fixed = doc["training"]["fixed list"]
+    assert fixed["reused"] and fixed["command"] == \
+        smoke["docs"][("first", "same")]["training"]["G16VV"]["command"]
+    new = {(r["layout"], r["eval_candidates"]): r["mae"]
+           for r in smoke["docs"][("first", "new")]["rows"] if r["model"] == "G16VV"}
+    for rig in ("paper-test2", "paper-test3"):
+        for spec in ("train", "spacing", "rig"):
+            assert by[(rig, "fixed list", spec)]["reused"]
+            assert by[(rig, "fixed list", spec)]["mae"] == new[(rig, spec)]
+    assert by[("paper-test1", "fixed list", "train")]["reused"]
+    # The learned-list training is the fixed one's command with the list learned.
+    learned_run = doc["training"]["learned list"]
+    assert not learned_run["reused"] and learned_run["steps"] == fixed["steps"]
+    assert learned_run["command"].replace(" --learn-candidates --candidates-lr 0.01", "") == \
+        fixed["command"].replace("runs/G16VV-cpu ", "runs/G16VV-cpu-learned ")
+    train_list = np.array(by[("paper-test1", "fixed list", "train")]["candidates"])
+    lists = {k: np.array(by[k]["candidates"]) for k in keys}
+    for k, cand in lists.items():
+        assert cand.shape == (16,) and np.all(np.diff(cand) > 0), k
+        assert cand[0] == pytest.approx(0.5) and cand[-1] == pytest.approx(100.0), k
+        if k[2] in ("supervised", "photometric", "learned"):
+            assert not np.allclose(cand, train_list), k          # the list moved
+    # The ring's recomputed list is the closed form at its 0.5 m camera spacing.
+    theta = np.linspace(np.arctan(0.5 / 0.5), np.arctan(0.5 / 100.0), 16)
+    np.testing.assert_allclose(lists[("ring5-0.5m", "fixed list", "spacing")],
+                               0.5 / np.tan(theta), rtol=1e-5)
+    assert by[("ring5-0.5m", "fixed list", "train")]["cameras"] == 5
+    # Each adapted list is the file the adaptation wrote, and that file is what was evaluated.
+    adapted = {(a["rig"], a["loss"]): a for a in doc["adaptation"]}
+    assert set(adapted) == {(rig, loss) for rig in ("paper-test2", "paper-test3", "ring5-0.5m")
+                            for loss in ("supervised", "photometric")}
+    for (rig, loss), a in adapted.items():
+        assert not a["reused"] and a["seconds"] > 0 and math.isfinite(a["last_loss"])
+        np.testing.assert_allclose(lists[(rig, "fixed list", loss)], a["candidates"], rtol=1e-6)
+        assert json.loads(Path(a["list"]).read_text())["candidates"] == a["candidates"]
+        assert a["command"].startswith("gijax adapt-candidates --ckpt ")
+    assert {r["layout"]: r["mae_vs_spacing_percent"] is None for r in doc["rows"]} == {
+        "paper-test1": True, "paper-test2": False, "paper-test3": False, "ring5-0.5m": False}
+    assert [c["claim"][:4] for c in doc["claims"]] == ["(L1)", "(L2)", "(L3)", "(L4)"]
+    for c in doc["claims"]:
+        assert c["status"] in ("PASS", "FAIL")
+    for c in doc["claims"][:3]:
+        assert set(c["numbers"]) == {"paper-test2", "paper-test3", "ring5-0.5m"}
+    assert "smoke scale" in doc["verdict"] and ("? Yes" in doc["verdict"]
+                                                or "? No" in doc["verdict"])
+    md = learned["out"].with_suffix(".md").read_text()
+    for text in (doc["verdict"], "## Claims", "## Adaptation", "## The lists", "## Provenance",
+                 "paper's recomputed (spacing)", "adapted, photometric"):
+        assert text in md
+    prov = doc["provenance"]
+    for field in PROVENANCE_FIELDS:
+        assert field in prov, field
+    assert prov["command"].startswith("python experiments/learned_candidates.py --scale smoke")
+
+
+@pytest.mark.slow
+def test_learned_candidates_data_and_figures(learned):
+    doc = learned["docs"]["first"]
+    work = Path(doc["provenance"]["work"])
+    seeds = {d["role"]: d["seed"] for d in doc["provenance"]["datasets"]}
+    assert seeds["ring5-0.5m"] == 105 and seeds["adapt-ring5-0.5m"] == 205
+    # Adaptation scenes are never test scenes (nor training ones); the check says so.
+    tests = ("paper-test1", "paper-test2", "paper-test3", "ring5-0.5m")
+    adapt = [f"adapt-{r}" for r in tests[1:]]
+    assert learned_candidates.check_adaptation_separate(work, adapt, tests) == dict.fromkeys(
+        adapt, 0)
+    with pytest.raises(ValueError, match="adaptation data shares scene seeds"):
+        learned_candidates.check_adaptation_separate(work, ["ring5-0.5m"], tests)
+    assert (work / "rigs" / "ring5-0.5m.yaml").is_file()
+    # Every list, EV and GI on every rig, with its pixel steps.
+    lists = {(s["rig"], s["list"]): s for s in doc["lists"]}
+    for rig in tests:
+        assert {(rig, "EV"), (rig, "GI")} <= set(lists)
+    assert len([k for k in lists if k[0] == "ring5-0.5m"]) == 8
+    for s in doc["lists"]:
+        assert len(s["steps_px"]) == 15 and min(s["steps_px"]) > 0
+    # The rig-aware list takes equal mean steps by construction; EV's equal steps in inverse
+    # distance move a feature less near the rig than far from it (the parallax angle saturates).
+    for rig in tests[1:]:
+        assert lists[(rig, "rig-aware GI")]["min_max_ratio"] == pytest.approx(1.0, abs=1e-3)
+    ev = lists[("paper-test2", "EV")]
+    assert ev["steps_px"][0] < ev["steps_px"][-1]
+    for name in ("lists", *tests):
+        png = learned["out"].with_name(f"learned_{name}.png")
+        img = cv2.imread(str(png))
+        assert img is not None and img.shape[0] > 200, png
+
+
+@pytest.mark.slow
+def test_learned_candidates_rerun_reuses_everything(learned):
+    first, second = learned["docs"]["first"], learned["docs"]["second"]
+    assert all(r["reused"] for r in second["rows"])
+    assert all(a["reused"] for a in second["adaptation"])
+    assert all(r["reused"] for r in second["training"].values())
+    assert [r["mae"] for r in second["rows"]] == [r["mae"] for r in first["rows"]]
+    assert [a["candidates"] for a in second["adaptation"]] == \
+        [a["candidates"] for a in first["adaptation"]]
+    assert learned["seconds"]["second"] < learned["seconds"]["first"]
+
+
 # --------------------------------------------------------------------------- pieces
 
 
@@ -277,6 +419,56 @@ def test_claim_b_pairs_and_reductions():
     assert rig["status"] == "PASS" and rig["claim"].startswith("(b, rig)")
     assert rig["numbers"]["paper-test2/G16"]["reduction_percent"] == pytest.approx(50.0)
     assert "paper-test3/G16VV" not in rig["numbers"]          # no rig-aware row there
+
+
+def test_ring_rig_is_a_pentagon_with_half_metre_spacing():
+    from gijax.candidates import camera_spacing
+
+    rig = learned_candidates.ring_rig()
+    t = np.asarray(rig.translations, np.float64)
+    assert rig.num_cameras == 5
+    assert float(camera_spacing(rig)) == pytest.approx(0.5, abs=1e-6)
+    np.testing.assert_allclose(np.asarray(rig.reference), t.mean(0), atol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(t - t.mean(0), axis=1), 0.25 / np.sin(np.pi / 5),
+                               rtol=1e-6)
+    # Its seeds are its own: none is a seed of the other experiments.
+    assert not set(learned_candidates.SEEDS.values()) & set(scales.DATA_SEEDS.values())
+
+
+def _list_rows(**mae):
+    """Rows of the learned-candidates table: ``rig__training__list=mae``."""
+    rows = []
+    for key, v in mae.items():
+        layout, training, lst = key.split("__")
+        rows.append({"layout": layout.replace("_", "-"), "training": training.replace("_", " "),
+                     "list": lst, "mae": v})
+    return rows
+
+
+def test_learned_list_claims_need_every_new_rig():
+    rigs = {"paper_test2": 0.050, "paper_test3": 0.060, "ring5-0.5m": 0.040}
+    spacing = {f"{r}__fixed_list__spacing": v for r, v in rigs.items()}
+    better = {f"{r}__fixed_list__supervised": 0.9 * v for r, v in rigs.items()}
+    rows = _list_rows(**spacing, **better)
+    c = learned_candidates.claim_beats_paper_list(rows, "supervised")
+    assert c["status"] == "PASS" and c["claim"].startswith("(L1)")
+    assert c["numbers"]["paper-test3"]["change_percent"] == pytest.approx(-10.0)
+    assert learned_candidates.claim_beats_paper_list(rows, "photometric")["status"] == "N/A"
+    assert "? Yes**: the supervised-adapted list lowers" in learned_candidates.verdict(
+        [c], scales.SCALES["cpu"])
+    # Worse on one rig: not a win, whatever the others say.
+    rows = _list_rows(**spacing, **{**better, "ring5-0.5m__fixed_list__supervised": 0.041})
+    c = learned_candidates.claim_beats_paper_list(rows, "supervised")
+    assert c["status"] == "FAIL" and "+2.5 %" in c["detail"]
+    assert "? No**" in learned_candidates.verdict([c], scales.SCALES["cpu"])
+    # The learned list is compared with the fixed-list model's 'spacing' row.
+    learned = {f"{r}__learned_list__learned": 0.5 * v for r, v in rigs.items()}
+    c = learned_candidates.claim_beats_paper_list(_list_rows(**spacing, **learned), "learned")
+    assert c["status"] == "PASS" and c["numbers"]["paper-test2"]["spacing"] == 0.050
+    same = _list_rows(paper_test1__fixed_list__train=0.03, paper_test1__learned_list__learned=0.03)
+    assert learned_candidates.claim_learning_costs_nothing(same)["status"] == "PASS"
+    same[1]["mae"] = 0.031
+    assert learned_candidates.claim_learning_costs_nothing(same)["status"] == "FAIL"
 
 
 def test_concat_models_cannot_take_four_cameras():

@@ -252,7 +252,8 @@ def test_learned_candidate_list_trains_is_saved_and_is_what_the_run_predicts_wit
 
     arr = tiny_arrays(2)
     run = tmp_path / "run"
-    cfg = _config(steps=6, ckpt_every=3, val_every=3, learn_candidates=True, candidates_lr=0.05)
+    cfg = _config(steps=6, ckpt_every=3, val_every=3, keep_best=True, learn_candidates=True,
+                  candidates_lr=0.05)
     t = Trainer(cfg, run, tiny_rig(), array_stream_factory(arr, 2, 0), lambda: [arr],
                 progress=False)
     t.fit()

@@ -225,6 +225,10 @@ def adapt_candidates(model: OmniStereoNet, rig: Rig, make_batches: Callable, ini
         write_text_atomic(folder / "curve.csv", "step,loss\n" + "".join(
             f"{h['step']},{h['loss']:.8g}\n" for h in history))
 
+    # Committed to the device like the step's outputs, so the first call compiles the only
+    # program.
+    dev = jax.local_devices()[0]
+    logits, opt = jax.device_put((logits, opt), dev)
     loader = make_batches(stream_state) if step0 < config.steps else None
     try:
         with tqdm(total=config.steps, initial=step0, desc=f"adapt ({config.loss})",

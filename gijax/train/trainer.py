@@ -363,9 +363,10 @@ class Trainer:
                 if validating:
                     metrics = self.validate(step)
                     if metrics is not None:
-                        if cfg.learn_candidates:
-                            metrics = dict(metrics, candidates=self.current_candidates.tolist())
-                        self._log({"step": step, "split": "val", **metrics})
+                        record = {"step": step, "split": "val", **metrics}
+                        if cfg.learn_candidates:   # logged beside the numbers, not ranked
+                            record["candidates"] = self.current_candidates.tolist()
+                        self._log(record)
                         if cfg.keep_best:
                             self.store.maybe_save_best(step, self.state,
                                                        self._meta(step, stream.state()), metrics)
