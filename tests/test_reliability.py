@@ -282,11 +282,12 @@ def test_prediction_files_mark_invalid_pixels(tmp_path):
     assert "NaN" in meta["invalid_pixels"]
 
 
-def _rtss_without_views(rig, sample, preset_name="RS-E32", candidates=None):
+def _rtss_without_views(rig, sample, preset_name="RS-E32", candidates=None, pano=None):
     """RTSS's result where no pixel is seen by a camera pair (NaN, as rtss_predict documents);
     stands in for the baseline, whose own masking is tested in test_rtss.py."""
-    nan = np.full((160, 640), np.nan, np.float32)
-    return {"inv_distance": nan, "distance": nan, "valid": np.zeros((160, 640), bool)}
+    shape = (160, 640) if pano is None else pano.shape
+    nan = np.full(shape, np.nan, np.float32)
+    return {"inv_distance": nan, "distance": nan, "valid": np.zeros(shape, bool)}
 
 
 @pytest.mark.usefixtures("quick_compiles")

@@ -220,12 +220,13 @@ def test_grad_accum_and_bf16_step_agree_with_plain_step():
 
     rig = model_rig(rig)
     cand = jnp.asarray(CANDIDATES, jnp.float32)
-    out = {}
+    out, steps = {}, {}
 
     def run(name, accum, bf16, batch):
         state = S.place_state(S.init_state(params, rest, tx), mesh)
-        step = jax.jit(S.build_train_step(tdef, tx, mc.loss, accum, bf16))
-        new, m = step(state, S.place_batch(batch, mesh), rig, cand)
+        if (accum, bf16) not in steps:          # one program per variant, not per call
+            steps[accum, bf16] = jax.jit(S.build_train_step(tdef, tx, mc.loss, accum, bf16))
+        new, m = steps[accum, bf16](state, S.place_batch(batch, mesh), rig, cand)
         out[name] = (float(m["loss"]), new)
 
     for i in range(2):  # micro-batch i holds sample i (sample j goes to micro-batch j mod k)

@@ -93,6 +93,9 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
         return reader
 
     reader = opened(data, "training")
+    from gijax.train.trainer import training_candidates
+
+    training_candidates(config, reader.rig)    # a bad list is the first thing reported
     config, mc = fit_panorama(config, reader, log=print if progress else None)
     if rig:
         from gijax.io.rigfile import load_rig
