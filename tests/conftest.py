@@ -6,20 +6,14 @@ import jax
 import pytest
 
 
-# Modules whose module-scoped fixtures take tens of seconds (the experiments' smoke runs, the
-# ONNX exports, the multi-device training): their tests stay on one xdist worker
-# (``--dist loadgroup``), so the fixture is built once; every other test is balanced alone.
-SHARED_FIXTURE_MODULES = ("test_experiments", "test_export", "test_train_parallel")
-
-
 def pytest_collection_modifyitems(config, items):
     """Tests marked ``long`` (extra seeds of the fault probe) run only with GIJAX_LONG_TESTS=1,
-    so the default suite stays within its time budget; the tests of
-    :data:`SHARED_FIXTURE_MODULES` share one worker per module."""
-    for item in items:
-        module = item.module.__name__.rsplit(".", 1)[-1] if item.module else ""
-        if module in SHARED_FIXTURE_MODULES:
-            item.add_marker(pytest.mark.xdist_group(module))
+    so the default suite stays within its time budget.
+
+    Modules whose module-scoped fixtures take tens of seconds (the experiments' smoke runs, the
+    ONNX exports, the multi-device training) mark themselves ``xdist_group``: under
+    ``--dist loadgroup`` their tests stay on one worker and the fixture is built once, while
+    every other test is balanced on its own."""
     if os.environ.get("GIJAX_LONG_TESTS") == "1":
         return
     skip = pytest.mark.skip(reason="long variant: set GIJAX_LONG_TESTS=1 to run it")

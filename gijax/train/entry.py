@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from pathlib import Path
 from typing import NamedTuple, Optional
 
 from gijax.train.config import TrainConfig
@@ -93,9 +94,11 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
         return reader
 
     reader = opened(data, "training")
+    from gijax.store.configs import CONFIG_FILE
     from gijax.train.trainer import training_candidates
 
-    training_candidates(config, reader.rig)    # a bad list is the first thing reported
+    if not (Path(out) / CONFIG_FILE).exists():   # a new run: a bad list is reported first
+        training_candidates(config, reader.rig)
     config, mc = fit_panorama(config, reader, log=print if progress else None)
     if rig:
         from gijax.io.rigfile import load_rig
