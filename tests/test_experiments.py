@@ -22,9 +22,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from experiments import claims, evaluation, reporting, scales, workfolder  # noqa: E402
 from experiments import learned_candidates, new_layout, same_layout  # noqa: E402
 
-# One worker builds this module's shared fixtures once (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("test_experiments")
-
 PROVENANCE_FIELDS = ("command", "seed", "git_revision", "durations_s", "machine", "scale",
                      "datasets", "data_seeds")
 

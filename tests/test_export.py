@@ -20,9 +20,6 @@ from gijax.io.rigfile import load_rig
 from gijax.model import create_model
 from gijax.nn.presets import get_preset
 
-# One worker builds this module's shared fixtures once (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("test_export")
-
 # The smallest network with every stage (variance cost volume, any camera count).
 TINY = dataclasses.replace(
     get_preset("G16V-released-cpu"), name="tiny-export", feature_blocks=(1, 1),

@@ -11,9 +11,6 @@ import pytest
 
 from test_train_faults import CHILD, child_env
 
-# One worker builds this module's shared fixtures once (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("test_train_parallel")
-
 # Runs one training step of the volume-loss variant (global batch 4) on a mesh of the given
 # devices and saves the resulting state. Modes: 'devices' compares a 1-device and a 4-device mesh in one process;
 # 'dist' is one of two processes joined by jax.distributed.initialize (2 devices each).
