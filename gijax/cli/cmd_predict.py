@@ -10,8 +10,9 @@ import numpy as np
 HELP = "estimate the distance panorama of one set of fisheye images"
 DESCRIPTION = """\
 Run a model on one image per camera and write, under --out: distance.npy (float32 metres, an
-equirectangular panorama: 160 x 640 for the paper's hemisphere; see the panorama options), valid.npy / valid.png (per-pixel validity: True / 255 where a
-distance was estimated), inverse_distance.png (colour map with a colour bar in metres),
+equirectangular panorama: 160 x 640 for the paper's hemisphere; see the panorama options),
+valid.npy / valid.png (per-pixel validity: True / 255 where a distance was estimated),
+inverse_distance.png (colour map with a colour bar in metres),
 uncertainty.png (entropy of the learned model's candidate distribution; the classical
 baseline has none and writes no such file), rgb.png (the colour panorama: each pixel the mean
 colour of its predicted point over the cameras that see it), points.ply (coloured point cloud
