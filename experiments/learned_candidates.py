@@ -55,11 +55,10 @@ from experiments.evaluation import (ROW_METRICS, cached_evaluation, eval_key,
                                     net_predictor)  # noqa: E402
 from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
 from experiments.reporting import (fmt, log, read_json, save_figure, save_png, save_table,
-                                   update_results_section, write_json)  # noqa: E402
+                                   publish_section, write_json)  # noqa: E402
 from experiments.scales import DATA_STYLE, TEST_RIGS, Scale, preset_name  # noqa: E402
 from experiments.workfolder import (check_held_out, dataset_seeds, ensure_trained,
-                                    last_logged_step, last_validation, render_argv, style_counts,
-                                    train_argv, train_config)  # noqa: E402
+                                    render_argv, style_counts)  # noqa: E402
 from experiments import same_layout as S  # noqa: E402
 from gijax.bench.report import markdown_grid  # noqa: E402
 
@@ -196,57 +195,13 @@ def samples_of(scale: Scale, sizes: Sizes, layout: str) -> int:
 
 # --------------------------------------------------------------------------- training
 
-def learned_run(work: Path, scale: Scale) -> Path:
-    return work / "runs" / f"{preset_name(scale, MODEL)}-learned"
-
-
-def learned_argv(work: Path, scale: Scale, seed: int, sizes: Sizes) -> list:
-    """The fixed-list run's ``gijax train`` command with the list learned and its own folder:
-    the same data, steps, batch, learning rate, validation and seed."""
-    argv = train_argv(work, scale, MODEL, seed)
-    argv[argv.index("--out") + 1] = learned_run(work, scale)
-    return argv + ["--learn-candidates", "--candidates-lr", sizes.candidates_lr]
-
-
-def ensure_learned(work: Path, scale: Scale, seed: int, sizes: Sizes) -> dict:
-    """Train MODEL with its list learned jointly (resuming), or reuse the finished run."""
-    from gijax.train.entry import train
-
-    run_dir = learned_run(work, scale)
-    done_file = run_dir.with_name(run_dir.name + ".done.json")
-    command = _command(learned_argv(work, scale, seed, sizes))
-    done = read_json(done_file)
-    if done and done.get("command") == command and done.get("steps") == scale.steps:
-        log(f"  {run_dir.name}: reusing the finished run {run_dir}")
-        return {**done, "reused": True}
-    start = last_logged_step(run_dir)
-    log(f"  {run_dir.name}: training {scale.steps} steps with the list learned" +
-        (f" (resuming after step {start})" if start else "") + f" -> {run_dir}")
-    config = dataclasses.replace(train_config(scale, MODEL, seed), learn_candidates=True,
-                                 candidates_lr=sizes.candidates_lr)
-    t0 = time.perf_counter()
-    train(config, work / "data" / "train", run_dir,
-          val=work / "data" / "val" if scale.val_samples else None, progress=scale.progress)
-    seconds = time.perf_counter() - t0
-    record = {"model": MODEL, "preset": preset_name(scale, MODEL), "run": str(run_dir),
-              "command": command, "steps": scale.steps, "resumed_from_step": start,
-              "train_seconds": seconds,
-              "seconds_per_step": seconds / max(scale.steps - start, 1),
-              "validation": last_validation(run_dir),
-              "final_candidates": (read_json(run_dir / "candidates.json") or {}).get(
-                  "candidates"),
-              "finished_unix": time.time()}
-    write_json(done_file, record)
-    return {**record, "reused": False}
-
-
 def train_both(scale: Scale, sizes: Sizes, work: Path, seed: int, durations: dict) -> dict:
     """The fixed-list run of ``same_layout.py`` (reused, or trained as it would train it) and
     the learned-list run at the same budget."""
     t0 = time.perf_counter()
     log(f"training {preset_name(scale, MODEL)} with its fixed list and with a learned list")
     runs = {FIXED: ensure_trained(work, scale, MODEL, seed),
-            LEARNED: ensure_learned(work, scale, seed, sizes)}
+            LEARNED: ensure_trained(work, scale, MODEL, seed, sizes.candidates_lr)}
     durations["training"] = time.perf_counter() - t0
     durations["training_recorded"] = sum(r.get("train_seconds", 0.0) for r in runs.values())
     return runs
@@ -697,12 +652,7 @@ def main(argv=None) -> int:
     log(f"wrote {out.with_suffix('.md')}, {out.with_suffix('.json')} and "
         f"{', '.join(str(f) for f in figures.values())}")
     if results is not None:
-        for v in figures.values():
-            if v.resolve().is_relative_to(results.resolve().parent):
-                md = md.replace(f"]({v.name})",
-                                f"]({v.resolve().relative_to(results.resolve().parent)})")
-        update_results_section(results, NAME, md)
-        log(f"updated the {NAME} section of {results}")
+        publish_section(results, NAME, md, figures.values())
     return 0
 
 

@@ -40,7 +40,7 @@ from experiments.evaluation import (ROW_METRICS, cached_evaluation, net_predicto
                                     rtss_predictor)  # noqa: E402
 from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
 from experiments.reporting import (fmt, log, save_figure, save_table,
-                                   update_results_section)  # noqa: E402
+                                   publish_section)  # noqa: E402
 from experiments.scales import PAPER_MAE_NEW, Scale  # noqa: E402
 from experiments.workfolder import style_counts  # noqa: E402
 from experiments import same_layout as S  # noqa: E402
@@ -305,12 +305,7 @@ def main(argv=None) -> int:
     log(f"wrote {out.with_suffix('.md')}, {out.with_suffix('.json')} and "
           f"{', '.join(str(f) for f in figures.values())}")
     if results is not None:
-        for v in figures.values():
-            if v.resolve().is_relative_to(results.resolve().parent):
-                md = md.replace(f"]({v.name})",
-                                f"]({v.resolve().relative_to(results.resolve().parent)})")
-        update_results_section(results, NAME, md)
-        log(f"updated the {NAME} section of {results}")
+        publish_section(results, NAME, md, figures.values())
     return 0
 
 

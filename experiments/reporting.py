@@ -62,6 +62,18 @@ def update_results_section(results_md: Path, section: str, body: str) -> None:
     write_text(results_md, f"{head}{begin}\n{body.strip()}\n{end}{tail}")
 
 
+def publish_section(results_md: Path, section: str, body: str, figures) -> None:
+    """:func:`update_results_section` with the links to ``figures`` (paths) that lie beside
+    ``results_md`` made relative to it (the document links them by file name)."""
+    base = results_md.resolve().parent
+    for fig in figures:
+        fig = Path(fig)
+        if fig.resolve().is_relative_to(base):
+            body = body.replace(f"]({fig.name})", f"]({fig.resolve().relative_to(base)})")
+    update_results_section(results_md, section, body)
+    log(f"updated the {section} section of {results_md}")
+
+
 def save_png(fig, path: Path, dpi: int) -> None:
     """A matplotlib figure as a PNG file (rendered in memory, then written atomically)."""
     buf = io.BytesIO()

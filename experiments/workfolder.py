@@ -10,6 +10,7 @@ names the equivalent ``gijax`` command, which also keys the reuse.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shlex
 import time
@@ -92,11 +93,19 @@ def style_counts(path: Path) -> dict:
 
 # --------------------------------------------------------------------------- training
 
-def train_argv(work: Path, scale: Scale, model: str, seed: int) -> list:
-    """The ``gijax train`` command equivalent to :func:`ensure_trained`'s call."""
+def run_folder(work: Path, scale: Scale, model: str, learned: bool = False) -> Path:
+    """A model's run folder; a run that learns its candidate list has its own."""
+    return work / "runs" / (preset_name(scale, model) + ("-learned" if learned else ""))
+
+
+def train_argv(work: Path, scale: Scale, model: str, seed: int,
+               candidates_lr: float | None = None) -> list:
+    """The ``gijax train`` command equivalent to :func:`ensure_trained`'s call; with
+    ``candidates_lr`` the list is learned too, at the same data, steps, batch, learning rate,
+    validation and seed."""
     preset = preset_name(scale, model)
     argv = ["train", "--preset", preset, "--data", work / "data" / "train",
-            "--out", work / "runs" / preset, "--steps", scale.steps, "--batch", scale.batch,
+            "--out", run_folder(work, scale, model, candidates_lr is not None), "--steps", scale.steps, "--batch", scale.batch,
             "--lr", scale.lr, "--val-every", scale.val_every, "--ckpt-every", scale.ckpt_every,
             "--seed", seed, "--workers", _workers(scale)]
     if scale.val_samples:
@@ -105,6 +114,8 @@ def train_argv(work: Path, scale: Scale, model: str, seed: int) -> list:
         argv += ["--override", f"{k}={json.dumps(v, separators=(',', ':'))}"]
     if not scale.progress:
         argv.append("--no-progress")
+    if candidates_lr is not None:
+        argv += ["--learn-candidates", "--candidates-lr", candidates_lr]
     return argv
 
 
@@ -145,28 +156,39 @@ def last_validation(run_dir: Path) -> Optional[dict]:
     return vals[-1] if vals else None
 
 
-def ensure_trained(work: Path, scale: Scale, model: str, seed: int) -> dict:
-    """Train one model to ``scale.steps`` (resuming), or reuse a finished run; its record."""
+def ensure_trained(work: Path, scale: Scale, model: str, seed: int,
+                   candidates_lr: float | None = None) -> dict:
+    """Train one model to ``scale.steps`` (resuming), or reuse a finished run; its record.
+    With ``candidates_lr`` the candidate list is learned too (its own run folder), and the
+    record holds the final list."""
     from gijax.train.entry import train
 
     preset = preset_name(scale, model)
-    run_dir = work / "runs" / preset
-    done_file = work / "runs" / f"{preset}.done.json"
-    command = _command(train_argv(work, scale, model, seed))
+    learned = candidates_lr is not None
+    run_dir = run_folder(work, scale, model, learned)
+    done_file = run_dir.with_name(run_dir.name + ".done.json")
+    command = _command(train_argv(work, scale, model, seed, candidates_lr))
     done = read_json(done_file)
     if done and done.get("command") == command and done.get("steps") == scale.steps:
-        log(f"  {preset}: reusing the finished run {run_dir}")
+        log(f"  {run_dir.name}: reusing the finished run {run_dir}")
         return {**done, "reused": True}
     start = last_logged_step(run_dir)
-    log(f"  {preset}: training {scale.steps} steps" +
+    log(f"  {run_dir.name}: training {scale.steps} steps" +
+        (" with the list learned" if learned else "") +
         (f" (resuming after step {start})" if start else "") + f" -> {run_dir}")
+    config = train_config(scale, model, seed)
+    if learned:
+        config = dataclasses.replace(config, learn_candidates=True, candidates_lr=candidates_lr)
     t0 = time.perf_counter()
-    train(train_config(scale, model, seed), work / "data" / "train", run_dir,
+    train(config, work / "data" / "train", run_dir,
           val=work / "data" / "val" if scale.val_samples else None, progress=scale.progress)
     seconds = time.perf_counter() - t0
     record = {"model": model, "preset": preset, "run": str(run_dir), "command": command,
               "steps": scale.steps, "resumed_from_step": start, "train_seconds": seconds,
               "seconds_per_step": seconds / max(scale.steps - start, 1),
               "validation": last_validation(run_dir), "finished_unix": time.time()}
+    if learned:
+        record["final_candidates"] = (read_json(run_dir / "candidates.json") or {}).get(
+            "candidates")
     write_json(done_file, record)
     return {**record, "reused": False}

@@ -131,7 +131,6 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
         raise ValueError(f"images must have 3 (RGB) channels; found {images.shape[-1]}")
     check_candidates(config, candidates)
     pano = model_panorama(config) if pano is None else pano
-    model_panorama(config, coverage_of(pano))  # sizes the network can run
     note = coverage_note(config, pano)
     if note and log is not None:
         log(note)
