@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from gijax.geometry import cameras as C
@@ -75,6 +75,13 @@ def _round_trip(cam, px):
 def _check_round_trip(model, params, dtype, tol):
     if dtype == jnp.float32 and "alpha" in params:
         params = dict(params, alpha=0.52 + 0.28 * (params["alpha"] - 0.35) / 0.4)
+    if model == "kb":
+        # The round trip is defined for lenses whose angle-to-radius polynomial rises over the
+        # whole field of view, as calibrated lenses' does: where theta_d'(theta) nears 0 a pixel
+        # no longer determines its angle (some draws even fold back inside 95 degrees).
+        theta = np.linspace(0.0, np.radians(FOV[model]) / 2, 512)
+        slope = 1 + sum((2 * i + 1) * params[f"k{i}"] * theta ** (2 * i) for i in range(1, 5))
+        assume(slope.min() > 0.25)
     cam = C.make_camera(model, params, W, H, FOV[model], dtype=dtype)
     px = _pixels(np.dtype(dtype))
     back, ok, ok_un, norm = (np.asarray(a) for a in _round_trip(cam, jnp.asarray(px)))
