@@ -276,3 +276,131 @@ def test_learned_candidate_list_trains_is_saved_and_is_what_the_run_predicts_wit
     with pytest.raises(ValueError, match="learned candidate list"):
         Trainer(_config(steps=8), run, tiny_rig(), array_stream_factory(arr, 2, 0), None,
                 progress=False)
+
+
+def _source(batch: dict, arrays: list) -> int:
+    """Which of ``arrays`` every sample of ``batch`` comes from (by its images)."""
+    imgs = np.asarray(batch["images"])
+    owners = {i for x in imgs for i, a in enumerate(arrays)
+              if any(np.array_equal(x, y) for y in a["images"])}
+    assert len(owners) == 1, owners
+    return owners.pop()
+
+
+def test_mixed_stream_draws_in_proportion_and_resumes_exactly():
+    """Two datasets of 4 and 8 samples: each batch comes whole from the dataset it names, about
+    a third of the batches from the smaller one, and a stream rebuilt from its saved state
+    continues with exactly the batches an uninterrupted stream gives."""
+    from gijax.train.sources import RIG_KEY, array_stream_factory, mixed_stream_factory
+
+    a, b = tiny_arrays(4, 0), tiny_arrays(8, 1)
+    make = mixed_stream_factory([array_stream_factory(a, 2, 0), array_stream_factory(b, 2, 0)],
+                                [4, 8], seed=3)
+    s = make(None)
+    full = [next(s) for _ in range(60)]
+    idx = [x[RIG_KEY] for x in full]
+    assert [_source(x, [a, b]) for x in full] == idx
+    assert 0.2 < idx.count(0) / len(idx) < 0.47, idx.count(0)
+    part = make(None)
+    for _ in range(17):
+        next(part)
+    resumed = make(json.loads(json.dumps(part.state())))
+    for x, y in zip(full[17:], (next(resumed) for _ in range(43))):
+        assert x[RIG_KEY] == y[RIG_KEY]
+        np.testing.assert_array_equal(x["images"], y["images"])
+    with pytest.raises(ValueError, match="saved for 1 training datasets; this run has 2"):
+        make({"step": 0, "streams": [None]})
+    with pytest.raises(ValueError, match="positive weight"):
+        mixed_stream_factory([array_stream_factory(a, 2, 0)], [0], 0)(None)
+
+
+def test_each_batch_of_mixed_datasets_is_trained_with_its_own_rig(tmp_path):
+    """A run over two datasets with different rigs passes each batch's own rig to the step."""
+    from gijax.train.sources import array_stream_factory, mixed_stream_factory
+    from gijax.train.trainer import Trainer
+
+    rig0 = tiny_rig()
+    rig1 = rig0.replace(translations=rig0.translations * 2.0)
+    a, b = tiny_arrays(2, 0), tiny_arrays(4, 1)
+    make = mixed_stream_factory([array_stream_factory(a, 2, 0), array_stream_factory(b, 2, 0)],
+                                [2, 4], seed=0)
+    t = Trainer(_config(steps=6), tmp_path / "run", [rig0, rig1], make, None, progress=False)
+    inner, seen = t._step, []
+
+    def spy(state, batch, rig, cand):
+        seen.append((_source({"images": np.asarray(batch["images"])}, [a, b]),
+                     np.asarray(rig.translations)))
+        return inner(state, batch, rig, cand)
+
+    t._step = spy
+    t.fit()
+    t.close()
+    assert {s for s, _ in seen} == {0, 1}
+    for s, trans in seen:
+        np.testing.assert_allclose(trans, np.asarray((rig0, rig1)[s].translations))
+
+
+def test_mixed_training_datasets_must_share_the_label_panorama(tmp_path):
+    """Folders whose labels differ in size are refused naming both; --rig with several
+    training folders is refused."""
+    from gijax.data import write_dataset
+    from gijax.geometry.panorama import Panorama
+    from gijax.train.entry import train
+
+    rig = _write_tiny_dataset(tmp_path / "a", 2, 0)
+    h, w = rig.cameras[0].height, rig.cameras[0].width
+
+    def sample(i):
+        return {"images": np.zeros((3, h, w, 3), np.uint8),
+                "distances": np.full((3, h, w), 2.0, np.float32),
+                "masks": np.ones((3, h, w), np.uint8),
+                "pano_distance": np.full((32, 128), 2.0, np.float32)}
+
+    write_dataset(tmp_path / "b", sample, rig, Panorama.hemisphere(32, 128), num_samples=2)
+    with pytest.raises(ValueError, match=r"different label panoramas \(16 x 64 hemisphere vs "
+                                         r"32 x 128 hemisphere\)") as err:
+        train(_config(steps=1), [tmp_path / "a", tmp_path / "b"], tmp_path / "run",
+              progress=False)
+    assert str(tmp_path / "b") in str(err.value) and not (tmp_path / "run").exists()
+    with pytest.raises(ValueError, match="applies to one training dataset"):
+        train(_config(steps=1), [tmp_path / "a", tmp_path / "a"], tmp_path / "run",
+              rig="paper-train", progress=False)
+
+
+def test_calibration_error_turns_each_steps_rig_within_its_bound(tmp_path):
+    """--calibration-error 0.5: every step's rig has each camera turned by a rotation of at
+    most 0.5 degrees (measured from the rotation matrices), a new one each step, the same one
+    for the same step in another run; positions and the labels' rig are untouched."""
+    from gijax.train.sources import array_stream_factory
+    from gijax.train.trainer import Trainer
+
+    rig = tiny_rig()
+    arr = tiny_arrays(2)
+    cfg = _config(steps=4, calibration_error_deg=0.5)
+    t = Trainer(cfg, tmp_path / "run", rig, array_stream_factory(arr, 2, 0), None, progress=False)
+    inner, seen = t._step, []
+
+    def spy(state, batch, r, cand):
+        seen.append(r)
+        return inner(state, batch, r, cand)
+
+    t._step = spy
+    t.fit()
+    t.close()
+    true_r = np.asarray(rig.rotations, np.float64)
+    angles = []
+    for r in seen:
+        got = np.asarray(r.rotations, np.float64)
+        cos = (np.einsum("nij,nij->n", true_r, got) - 1.0) / 2.0
+        angles.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        np.testing.assert_allclose(r.translations, rig.translations)
+    angles = np.asarray(angles)
+    assert np.all(angles <= 0.5 + 1e-3) and np.all(angles > 1e-3), angles
+    assert len({round(float(a), 6) for a in angles[:, 0]}) == 4          # new each step
+    again = Trainer(cfg, tmp_path / "run2", rig, array_stream_factory(arr, 2, 0), None,
+                    progress=False)
+    np.testing.assert_allclose(again.calibrated_rig(t.rig, 2).rotations, seen[2].rotations,
+                               atol=1e-7)
+    again.close()
+    with pytest.raises(ValueError, match="calibration_error_deg"):
+        _config(calibration_error_deg=-1.0)

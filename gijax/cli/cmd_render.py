@@ -47,6 +47,14 @@ def run(args) -> int:
     from gijax.cli.options import panorama_from_args
 
     base, pano = panorama_from_args(args, load_rig(args.rig), (160, 640), size=args.pano)
+    if args.lens != "keep":
+        from gijax.data.lens_draw import LensDraw, lens_variant_rig
+        import math
+
+        base, model = lens_variant_rig(args.lens_seed, base, args.lens,
+                                       LensDraw(fov_deg=tuple(args.fov_range)))
+        fovs = ", ".join(f"{math.degrees(float(c.fov)):.0f}" for c in base.cameras)
+        print(f"lenses drawn (seed {args.lens_seed}): {model}, fields of view {fovs} deg")
     h, w = pano.shape
     rig = render_dataset(base, args.out, args.samples, seed=args.seed,
                          image_scale=_scale_for(base, args), pano=pano, style=args.style,
@@ -92,6 +100,14 @@ def register(subparsers) -> None:
     add_panorama_options(p, "640x160", size=False)
     p.add_argument("--style", choices=STYLES, default="mixed",
                    help="scene style; mixed picks indoor or outdoor per sample")
+    p.add_argument("--lens", default="keep", choices=["keep", "random", "equidistant", "kb", "ds"],
+                   help="keep the rig's lenses, or render through drawn ones: one model for the "
+                        "rig ('random' draws it), per camera a field of view in --fov-range, an "
+                        "image circle of 85-100 %% of the half image and a monotonic shape "
+                        "(docs/data.md, Lens draws); the drawn rig is the dataset's rig")
+    p.add_argument("--lens-seed", type=int, default=0, help="seed of the lens draw")
+    p.add_argument("--fov-range", type=float, nargs=2, default=[180.0, 240.0],
+                   metavar=("LOW", "HIGH"), help="field of view of drawn lenses, degrees")
     p.add_argument("--trajectory-size", type=int, default=1000,
                    help="samples per trajectory folder")
     p.add_argument("--durable", action="store_true",

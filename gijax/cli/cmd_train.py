@@ -24,9 +24,11 @@ def register(subparsers) -> None:
             "--num-processes and --process-id."),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--preset", required=True, help="network preset, e.g. G16VV-cpu or G16VV")
-    p.add_argument("--data", required=True,
+    p.add_argument("--data", required=True, nargs="+", metavar="DIR",
                    help="training dataset folder, gijax's layout or the release's (partition "
-                        "'train'; DIR@KEY reads partition KEY)")
+                        "'train'; DIR@KEY reads partition KEY); several folders (other rigs, "
+                        "other lenses) are mixed, one folder per batch in proportion to their "
+                        "sizes, each with its own rig")
     p.add_argument("--val", help="validation dataset folder (optional)")
     p.add_argument("--out", required=True, help="run folder")
     p.add_argument("--steps", type=int, default=1000, help="optimiser steps in total")
@@ -48,6 +50,10 @@ def register(subparsers) -> None:
                    help="augment the training fisheyes (never validation): sensor noise, blur, "
                         "exposure / white balance / gamma, vignetting, JPEG; '+body' adds random "
                         "rig-body outlines to the masks (docs/data.md, Augmentations)")
+    p.add_argument("--calibration-error", type=float, default=0.0, metavar="DEG",
+                   help="tell the network a rig whose cameras are turned by random rotations "
+                        "of up to DEG degrees, new each step (images, labels and validation "
+                        "keep the true rig): tolerance to calibration error (docs/data.md)")
     p.add_argument("--workers", type=int, default=2, help="data loader threads")
     p.add_argument("--candidates", default=None,
                    help="JSON file with a list of distances (m); default: the preset's kind "
@@ -93,9 +99,11 @@ def run(args) -> int:
         bf16=args.bf16, val_every=args.val_every, val_batches=args.val_batches,
         ckpt_every=args.ckpt_every, keep=args.keep, keep_best=bool(args.val),
         workers=args.workers, augment=args.augment,
+        calibration_error_deg=args.calibration_error,
         learn_candidates=args.learn_candidates, candidates_lr=args.candidates_lr,
         candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
-    result = train(cfg, args.data, args.out, val=args.val, rig=args.rig,
+    data = args.data[0] if len(args.data) == 1 else args.data
+    result = train(cfg, data, args.out, val=args.val, rig=args.rig,
                    allow_partial=args.allow_partial, check_data=not args.no_data_check,
                    progress=not args.no_progress)
     if result.last_loss is not None:

@@ -55,6 +55,10 @@ class TrainConfig:
         the same loss with its own Adam at ``candidates_lr``; the current list is logged at
         each validation, written to ``candidates.json`` in the run folder and used by eval /
         predict / export of the run.
+      calibration_error_deg: each training step gives the network its rig with every camera
+        turned by a random rotation of up to this angle (degrees; drawn from the seed and the
+        step), so that it learns to tolerate a calibration that is slightly off; the images,
+        labels and validation keep the true rig. 0 disables it.
     """
 
     preset: str = "G16VV-cpu"
@@ -85,6 +89,7 @@ class TrainConfig:
     augment: str = "none"
     learn_candidates: bool = False
     candidates_lr: float = 1e-2
+    calibration_error_deg: float = 0.0
 
     def __post_init__(self) -> None:
         def fail(field, expected, found):
@@ -104,6 +109,8 @@ class TrainConfig:
             fail("lr", "a positive number", self.lr)
         if not self.candidates_lr > 0:
             fail("candidates_lr", "a positive number", self.candidates_lr)
+        if not 0.0 <= self.calibration_error_deg <= 10.0:
+            fail("calibration_error_deg", "an angle in [0, 10] degrees", self.calibration_error_deg)
         if self.clip_norm is not None and not self.clip_norm > 0:
             fail("clip_norm", "a positive number or null", self.clip_norm)
         if self.best_mode not in ("min", "max"):

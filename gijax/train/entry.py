@@ -61,7 +61,7 @@ def fit_panorama(config: TrainConfig, reader, log=None):
     return config, mc
 
 
-def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, *,
+def train(config: TrainConfig, data, out: str | os.PathLike, *,
           val: str | os.PathLike | None = None, rig: str | None = None,
           allow_partial: bool = False, check_data: bool = True,
           progress: bool = True) -> TrainingResult:
@@ -70,8 +70,13 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
     Args:
       config: how to train (``keep_best`` only takes effect with ``val``).
       data / val: training and validation dataset folders, gijax's layout or the release's
-        (``DIR@KEY`` reads partition KEY).
-      rig: rig name or file for the sweep geometry (default: the training dataset's rig).
+        (``DIR@KEY`` reads partition KEY). ``data`` may be a list of folders, each with its
+        own rig (other layouts, other lenses): each batch then comes from one of them, drawn
+        in proportion to their sizes (:class:`gijax.train.sources.MixedStream`); their labels
+        must be panoramas of one size and coverage, and the first folder's rig sets the GI
+        candidates.
+      rig: rig name or file for the sweep geometry (default: the training dataset's rig; one
+        training dataset only).
       allow_partial: accept datasets holding fewer samples than their manifest requests.
       check_data: read every file of gijax-layout datasets first (a damaged file then fails
         before training, not when the loader reaches it).
@@ -81,7 +86,8 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
     from gijax.data.augment import augment_preset
     from gijax.data.check import require_clean
     from gijax.io.paths import check_output_dir
-    from gijax.train.sources import dataset_stream_factory, open_dataset, validation_batches
+    from gijax.train.sources import (dataset_stream_factory, mixed_stream_factory, open_dataset,
+                                     validation_batches)
     from gijax.train.trainer import Trainer
 
     check_output_dir(out)
@@ -93,7 +99,19 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
             require_clean(reader.root, what, allow_partial, progress)
         return reader
 
-    reader = opened(data, "training")
+    datas = [data] if isinstance(data, (str, os.PathLike)) else list(data)
+    if not datas:
+        raise ValueError("no training dataset given")
+    if rig and len(datas) > 1:
+        raise ValueError(f"a rig file (--rig {rig}) applies to one training dataset; "
+                         f"{len(datas)} were given, each is trained with its own rig")
+    readers = [opened(d, "training") for d in datas]
+    reader = readers[0]
+    for d, other in zip(datas[1:], readers[1:]):
+        if _pano_text(other) != _pano_text(reader):
+            raise ValueError(f"training datasets {datas[0]} and {d} have different label "
+                             f"panoramas ({_pano_text(reader)} vs {_pano_text(other)}); "
+                             f"render them at one size and coverage")
     from gijax.store.configs import CONFIG_FILE
     from gijax.train.trainer import training_candidates
 
@@ -107,10 +125,17 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
         train_rig = load_rig(rig).replace(panorama_rotation=reader.rig.panorama_rotation)
     else:
         train_rig = reader.rig
-    make_stream = dataset_stream_factory(reader, train_rig, config.batch_size, config.seed,
-                                         mc.surrogate_hw, mask_augmentation=mc.mask_augmentation,
-                                         workers=config.workers,
-                                         augment=augment_preset(config.augment))
+    def stream_factory(r, r_rig):
+        return dataset_stream_factory(r, r_rig, config.batch_size, config.seed, mc.surrogate_hw,
+                                      mask_augmentation=mc.mask_augmentation,
+                                      workers=config.workers, augment=augment_preset(config.augment))
+
+    if len(readers) == 1:
+        make_stream, train_rigs = stream_factory(reader, train_rig), train_rig
+    else:
+        train_rigs = [r.rig for r in readers]
+        make_stream = mixed_stream_factory([stream_factory(r, r.rig) for r in readers],
+                                           [len(r) for r in readers], config.seed)
     make_val, val_rig = None, None
     if val:
         val_reader = opened(val, "validation")
@@ -118,10 +143,19 @@ def train(config: TrainConfig, data: str | os.PathLike, out: str | os.PathLike, 
                                               config.batch_size, mc.surrogate_hw,
                                               config.val_batches)
         val_rig = val_reader.rig
-    trainer = Trainer(config, out, train_rig, make_stream, make_val, rig_name=rig or str(data),
+    trainer = Trainer(config, out, train_rigs, make_stream, make_val,
+                      rig_name=rig or ", ".join(map(str, datas)),
                       progress=progress, val_rig=val_rig)
     try:
         history = trainer.fit()
     finally:
         trainer.close()
     return TrainingResult(trainer.start_step, history)
+
+
+def _pano_text(reader) -> str:
+    from gijax.geometry.panorama_frame import coverage_of
+
+    pano = getattr(reader, "pano", None)
+    return "no label panorama" if pano is None else (
+        f"{pano.height} x {pano.width} {coverage_of(pano)}")

@@ -139,6 +139,66 @@ def dataset_stream_factory(reader, rig, batch_size: int, seed: int, surrogate_hw
     return make
 
 
+RIG_KEY = "rig_index"
+
+
+class MixedStream:
+    """Batches from several training streams, one stream per batch: the stream of step ``k`` is
+    drawn from ``(seed, k)`` with probabilities proportional to ``weights`` (each dataset's
+    size), so a batch holds one rig's samples and the choice does not depend on timing.
+
+    Each batch carries ``rig_index`` (which stream); ``state()`` holds the step count and every
+    stream's own position, and ``make`` from that state continues exactly.
+    """
+
+    def __init__(self, factories, weights, seed: int, state: Optional[dict] = None):
+        w = np.asarray(weights, np.float64)
+        if len(factories) != len(w) or len(w) == 0 or np.any(w <= 0):
+            raise ValueError(f"a mixed stream needs one positive weight per stream; found "
+                             f"{len(factories)} streams and weights {w.tolist()}")
+        self.p = w / w.sum()
+        self.seed = int(seed)
+        streams_state = [None] * len(factories)
+        self.step = 0
+        if state is not None:
+            if len(state.get("streams", [])) != len(factories):
+                raise ValueError(f"data position was saved for {len(state.get('streams', []))} "
+                                 f"training datasets; this run has {len(factories)}")
+            self.step, streams_state = int(state["step"]), list(state["streams"])
+        self.streams = [f(s) for f, s in zip(factories, streams_state)]
+
+    def choice(self, step: int) -> int:
+        rng = np.random.default_rng([self.seed, 0x6D6978, step])
+        return int(rng.choice(len(self.p), p=self.p))
+
+    def state(self) -> dict:
+        return {"step": self.step, "streams": [s.state() for s in self.streams]}
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> dict:
+        i = self.choice(self.step)
+        batch = dict(next(self.streams[i]))
+        self.step += 1
+        batch[RIG_KEY] = i
+        return batch
+
+    def close(self) -> None:
+        for s in self.streams:
+            close = getattr(s, "close", None)
+            if close is not None:
+                close()
+
+
+def mixed_stream_factory(factories, weights, seed: int) -> Callable:
+    """Factory for :class:`MixedStream` over stream factories (one per training dataset)."""
+    def make(state=None):
+        return MixedStream(factories, weights, seed, state)
+
+    return make
+
+
 def validation_batches(reader, rig, batch_size: int, surrogate_hw, limit: int = 0):
     """The validation set in dataset order, once, in batches (the last one may be smaller)."""
     from gijax.data import Loader

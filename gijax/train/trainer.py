@@ -16,7 +16,7 @@ import os
 import shutil
 import time
 from pathlib import Path
-from typing import Callable, Iterable, Optional
+from typing import Callable, Iterable, Optional, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -31,6 +31,7 @@ from gijax.store.configs import CONFIG_FILE
 from gijax.train.checkpoints import CheckpointStore
 from gijax.train.config import TrainConfig, load_run_config, save_run_config
 from gijax.train.metrics import batch_sums, summarize
+from gijax.train.sources import RIG_KEY
 
 METRICS_FILE = "metrics.jsonl"
 # The learned candidate list of a run with TrainConfig.learn_candidates (a --candidates FILE).
@@ -91,7 +92,9 @@ class Trainer:
     Args:
       config: the training configuration.
       run_dir: the run folder (created if needed).
-      rig: the training rig (sweep geometry; also the default for GI candidates).
+      rig: the training rig (sweep geometry; also the default for GI candidates), or a
+        sequence of rigs, one per training dataset: batches then carry ``rig_index``
+        (:class:`gijax.train.sources.MixedStream`) and the first rig sets the GI candidates.
       make_train_stream: ``make(state | None) -> stream`` (see :mod:`gijax.train.sources`).
       make_val_batches: ``() -> iterable of batches`` (whole validation set), or None.
       rig_name: recorded in the run config.
@@ -100,7 +103,8 @@ class Trainer:
       val_rig: the validation data's rig (default: the training rig).
     """
 
-    def __init__(self, config: TrainConfig, run_dir, rig: Rig, make_train_stream: Callable,
+    def __init__(self, config: TrainConfig, run_dir, rig: Rig | Sequence[Rig],
+                 make_train_stream: Callable,
                  make_val_batches: Optional[Callable[[], Iterable[dict]]] = None,
                  rig_name: str = "", progress: bool = True, devices=None,
                  val_rig: Optional[Rig] = None):
@@ -109,7 +113,10 @@ class Trainer:
         self.config = config
         self.mc = config.model_config()
         self.run_dir = Path(run_dir)
-        self.rig = model_rig(rig)
+        rigs = list(rig) if isinstance(rig, (list, tuple)) else [rig]
+        rig = rigs[0]
+        self.rigs = [model_rig(r) for r in rigs]
+        self.rig = self.rigs[0]
         self.val_rig = self.rig if val_rig is None else model_rig(val_rig)
         self.make_train_stream = make_train_stream
         self.make_val_batches = make_val_batches
@@ -167,6 +174,7 @@ class Trainer:
             self.history: list[dict] = []
             self._tb = None
             self._stream = None
+            self._perturb = None
         except BaseException:
             if self._lock is not None:
                 self._lock.release()
@@ -334,8 +342,11 @@ class Trainer:
         try:
             while step < total:
                 local = next(stream)
+                rig = self.rigs[local.get(RIG_KEY, 0)]
+                if cfg.calibration_error_deg:
+                    rig = self.calibrated_rig(rig, step)
                 self.state, out = self._step(self.state, S.place_batch(local, self.mesh),
-                                             self.rig, self._cand)
+                                             rig, self._cand)
                 step += 1
                 n_last += cfg.batch_size
                 if step % cfg.log_every == 0 or step == total:
@@ -378,6 +389,20 @@ class Trainer:
                 self._tb = None
         self.start_step = step
         return self.history
+
+    def calibrated_rig(self, rig: Rig, step: int) -> Rig:
+        """The rig the network is told about at ``step`` under ``calibration_error_deg``: each
+        camera turned by a random rotation (:func:`gijax.data.calibration_error.perturb_rig`,
+        rotation only: the loader's resampling fixes the intrinsics), drawn from the seed and
+        the step, so a resumed run draws the same errors."""
+        if self._perturb is None:
+            from gijax.data.calibration_error import CalibrationError, perturb_rig
+
+            error = CalibrationError(rotation_deg=self.config.calibration_error_deg, focal=0.0,
+                                     centre=0.0)
+            self._perturb = jax.jit(lambda key, r: perturb_rig(key, r, error))
+        key = jax.random.fold_in(jax.random.PRNGKey(self.config.seed), 0x6361 + step)
+        return self._perturb(key, rig)
 
     def close(self) -> None:
         if self._stream is not None:
