@@ -79,7 +79,8 @@ class Predictor:
 
 
 def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
-    """A trained network (best validated checkpoint) on raw fisheye images of ``rig``.
+    """A trained network (a run folder's best validated checkpoint, or a bundle) on raw
+    fisheye images of ``rig``.
 
     The timed call includes the resampling to surrogate images, as the classical baseline's
     includes its matching views. ``candidates_spec`` is ``gijax eval``'s ``--candidates``.
@@ -90,11 +91,11 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
 
     from gijax.candidates.spec import resolve_candidates
     from gijax.model import forward as model_forward, make_grids
-    from gijax.store import load_for_inference
+    from gijax.store import load_model
     from gijax.sweep.surrogate import as_float_image
     from gijax.train.trainer import model_rig
 
-    model, mc, train_cand = load_for_inference(run_dir, "best")
+    model, mc, train_cand = load_model(run_dir, "best")
     if mc.cost_volume == "concat" and rig.num_cameras != mc.num_cameras:
         raise ValueError(f"{mc.name} concatenates exactly {mc.num_cameras} cameras; the rig has "
                          f"{rig.num_cameras}")
