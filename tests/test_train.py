@@ -404,3 +404,37 @@ def test_calibration_error_turns_each_steps_rig_within_its_bound(tmp_path):
     again.close()
     with pytest.raises(ValueError, match="calibration_error_deg"):
         _config(calibration_error_deg=-1.0)
+
+
+def test_non_finite_loss_stops_the_run_before_it_is_saved(tmp_path):
+    """A batch that makes the loss NaN at step 3 stops training with an error naming step 3,
+    although losses are read one step late; the checkpoints end at step 2."""
+    from gijax.train.sources import array_stream_factory
+    from gijax.train.trainer import Trainer
+
+    arr = tiny_arrays(2)
+    good = array_stream_factory(arr, 2, 0)
+
+    class Poisoned:
+        def __init__(self, state=None):
+            self.inner, self.n = good(state), 0
+
+        def __next__(self):
+            self.n += 1
+            batch = dict(next(self.inner))
+            if self.n == 3:
+                batch["images"] = np.full_like(batch["images"], np.nan)
+            return batch
+
+        def state(self):
+            return self.inner.state()
+
+    run = tmp_path / "run"
+    t = Trainer(_config(steps=6, ckpt_every=1, keep=10), run, tiny_rig(), Poisoned, None,
+                progress=False)
+    with pytest.raises(FloatingPointError, match="became nan at step 3"):
+        t.fit()
+    t.close()
+    assert sorted(int(p.name) for p in (run / "checkpoints").iterdir()) == [1, 2]
+    logged = [json.loads(line)["step"] for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert logged == [1, 2]

@@ -338,7 +338,11 @@ class Trainer:
             from tqdm import tqdm
 
             bar = tqdm(total=total, initial=step, unit="step", dynamic_ncols=True)
-        t_last, n_last = time.perf_counter(), 0
+        self._t_last, n_last = time.perf_counter(), 0
+        # The loss of a step is read once the next step is dispatched, so that the device
+        # computes while the host places the next batch; it is read at once before a
+        # checkpoint or a validation (a non-finite loss is never saved) and at the end.
+        pending = None
         try:
             while step < total:
                 local = next(stream)
@@ -349,23 +353,20 @@ class Trainer:
                                              rig, self._cand)
                 step += 1
                 n_last += cfg.batch_size
+                if pending is not None:
+                    self._record(*pending, bar)
+                    pending = None
                 if step % cfg.log_every == 0 or step == total:
-                    loss = float(out["loss"])
-                    if not math.isfinite(loss):
-                        raise FloatingPointError(f"training loss became {loss} at step {step}")
-                    now = time.perf_counter()
-                    rate = n_last / max(now - t_last, 1e-9)
-                    t_last, n_last = now, 0
-                    self._log({"step": step, "loss": loss, "grad_norm": float(out["grad_norm"]),
-                               "lr": float(self.lr_fn(step - 1)), "samples_per_s": rate})
-                    if bar is not None:
-                        bar.set_postfix(loss=f"{loss:.4f}", samples_s=f"{rate:.2f}")
+                    pending, n_last = (step, out, n_last), 0
                 if bar is not None:
                     bar.update(1)
                 last = step == total
                 saving = (cfg.ckpt_every and step % cfg.ckpt_every == 0) or last
                 validating = ((cfg.val_every and step % cfg.val_every == 0)
                               or (last and self.make_val_batches))
+                if pending is not None and (saving or validating):
+                    self._record(*pending, bar)
+                    pending = None
                 if cfg.learn_candidates and (saving or validating):
                     self._sync_candidates()
                     self._write_candidates(step)
@@ -389,6 +390,19 @@ class Trainer:
                 self._tb = None
         self.start_step = step
         return self.history
+
+    def _record(self, step: int, out: dict, samples: int, bar) -> None:
+        """Log the loss of ``step`` (``samples`` trained since the previous record)."""
+        loss = float(out["loss"])
+        if not math.isfinite(loss):
+            raise FloatingPointError(f"training loss became {loss} at step {step}")
+        now = time.perf_counter()
+        rate = samples / max(now - self._t_last, 1e-9)
+        self._t_last = now
+        self._log({"step": step, "loss": loss, "grad_norm": float(out["grad_norm"]),
+                   "lr": float(self.lr_fn(step - 1)), "samples_per_s": rate})
+        if bar is not None:
+            bar.set_postfix(loss=f"{loss:.4f}", samples_s=f"{rate:.2f}")
 
     def calibrated_rig(self, rig: Rig, step: int) -> Rig:
         """The rig the network is told about at ``step`` under ``calibration_error_deg``: each
