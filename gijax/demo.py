@@ -129,8 +129,24 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     with open(out_dir / "demo.json", "w") as f:
         json.dump({"seed": seed, "model": str(model), "table": table}, f, indent=2)
     print(format_table(table, seed))
+    print(model_note(model, config.name))
     print(f"wrote {out_dir / 'demo.png'}, {out_dir / 'points.ply'}, {out_dir / 'demo.json'}")
     return table
+
+
+def model_note(model, name: str) -> str:
+    """What the model was trained on and where it is expected to fail, from its provenance
+    (bundles record both; a run folder is named as it is)."""
+    from gijax.store import resolve_model_path
+    from gijax.store.assets import limitations, trained_on
+    from gijax.store.bundles import is_bundle, read_provenance
+
+    path = resolve_model_path(model)
+    if not is_bundle(path):
+        return f"model {name}: the training run {path}"
+    prov = read_provenance(path)
+    return (f"model {name}: trained on {trained_on(prov)}\n"
+            f"expected to fail on: {limitations(prov)}")
 
 
 def format_table(table: dict, seed: int) -> str:

@@ -140,3 +140,26 @@ def test_every_ckpt_names_the_bundled_models_when_nothing_matches(tmp_path, caps
         err = capsys.readouterr().err
         assert "no-such-model" in err and "bundled models: G16VV-cpu" in err, (argv, err)
         assert len(err.strip().splitlines()) == 1, err
+
+
+def test_demo_and_models_say_what_a_bundle_was_trained_on_and_where_it_fails(tmp_path):
+    """A bundle's stated training data and limits are what the demo prints under its table;
+    older provenance without them falls back to its data block and 'not stated'; a run folder
+    is named as such."""
+    from gijax.demo import model_note
+    from gijax.store.assets import limitations, trained_on
+
+    stated = {"trained_on": "4,800 rendered scenes on 8 rigs", "limitations": "real images",
+              "data": {"train_samples": 400, "rig": "paper-train"}}
+    bundle = tmp_path / "b"
+    bundle.mkdir()
+    (bundle / "weights.npz").write_bytes(b"")
+    (bundle / "PROVENANCE.json").write_text(json.dumps(stated))
+    assert model_note(bundle, "G16VV-cpu") == ("model G16VV-cpu: trained on 4,800 rendered "
+                                               "scenes on 8 rigs\nexpected to fail on: real "
+                                               "images")
+    old = {"data": {"train_samples": 400, "rig": "paper-train", "style": "mixed"}}
+    assert trained_on(old) == "400 rendered mixed scenes on paper-train"
+    assert limitations(old) == "not stated" and limitations({"limitations": 3}) == "not stated"
+    (tmp_path / "run").mkdir()
+    assert model_note(tmp_path / "run", "E8-cpu") == f"model E8-cpu: the training run {tmp_path / 'run'}"

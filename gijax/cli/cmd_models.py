@@ -25,7 +25,8 @@ def run(args) -> int:
     models = [describe_bundled(name) for name in bundled_names()]
     if args.json:
         print(json.dumps([{"name": m.name, "preset": m.preset, "parameters": m.parameters,
-                           "trained_on": m.trained_on, "path": str(m.path),
+                           "trained_on": m.trained_on, "limitations": m.limitations,
+                           "path": str(m.path),
                            "candidates": m.candidates} for m in models], indent=2))
         return 0
     if not models:
@@ -35,5 +36,7 @@ def run(args) -> int:
     print(f"{'name':<{width}}  {'preset':<14}{'parameters':>12}  trained on")
     for m in models:
         print(f"{m.name:<{width}}  {m.preset:<14}{m.parameters:>12,}  {m.trained_on}")
+    for m in models:
+        print(f"{m.name}: expected to fail on {m.limitations}")
     print(f"use one with --ckpt NAME, e.g. gijax predict --ckpt {models[0].name} ...")
     return 0

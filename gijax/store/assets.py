@@ -52,6 +52,10 @@ class BundledModel:
     trained_on: str
     provenance: dict
 
+    @property
+    def limitations(self) -> str:
+        return limitations(self.provenance)
+
 
 def parameter_count(config) -> int:
     """Trainable parameters of a network of ``config``, counted on its abstract shapes (no
@@ -69,6 +73,8 @@ def parameter_count(config) -> int:
 def trained_on(provenance: dict) -> str:
     """One line from a bundle's provenance: the data it was trained on, or where its weights
     came from."""
+    if isinstance(provenance.get("trained_on"), str):
+        return provenance["trained_on"]
     data = provenance.get("data")
     if isinstance(data, dict) and data:
         parts = []
@@ -86,6 +92,13 @@ def trained_on(provenance: dict) -> str:
     if provenance.get("source"):
         return f"weights converted from {Path(str(provenance['source'])).name}"
     return "not recorded (no PROVENANCE.json)"
+
+
+def limitations(provenance: dict) -> str:
+    """Where a bundle is expected to fail, as its provenance states it ('not stated' when it
+    does not)."""
+    text = provenance.get("limitations")
+    return text if isinstance(text, str) and text else "not stated"
 
 
 def describe_bundled(name: str) -> BundledModel:
