@@ -28,22 +28,30 @@ PROVENANCE_FIELDS = ("command", "seed", "git_revision", "durations_s", "machine"
 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory):
-    """Both scripts at --scale smoke in one work folder, then both again (the resume)."""
+    """Both scripts at --scale smoke in one work folder, then both again (the resume). XLA's
+    optimisation passes are off, as for the learned-candidates fixture below: the smoke checks
+    (files, reuse, metrics against their numpy reference, claims logic) do not depend on them,
+    and they dominate the compile time of the renders, trainings and evaluations."""
     root = tmp_path_factory.mktemp("experiments")
     work = root / "work"
     outs = {"same": root / "out" / "same", "new": root / "out" / "new"}
     mods = {"same": same_layout, "new": new_layout}
     seconds, docs, snapshots = {}, {}, {}
-    for rnd in ("first", "second"):
-        for name in ("same", "new"):
-            t0 = time.perf_counter()
-            rc = mods[name].main(["--scale", "smoke", "--work", str(work),
-                                  "--out", str(outs[name])])
-            assert rc == 0
-            seconds[(rnd, name)] = time.perf_counter() - t0
-            docs[(rnd, name)] = json.loads(outs[name].with_suffix(".json").read_text())
-        snapshots[rnd] = {str(p.relative_to(work / "runs")): p.stat().st_mtime_ns
-                          for p in sorted((work / "runs").rglob("*")) if p.is_file()}
+    previous = jax.config.read("jax_disable_most_optimizations")
+    jax.config.update("jax_disable_most_optimizations", True)
+    try:
+        for rnd in ("first", "second"):
+            for name in ("same", "new"):
+                t0 = time.perf_counter()
+                rc = mods[name].main(["--scale", "smoke", "--work", str(work),
+                                      "--out", str(outs[name])])
+                assert rc == 0
+                seconds[(rnd, name)] = time.perf_counter() - t0
+                docs[(rnd, name)] = json.loads(outs[name].with_suffix(".json").read_text())
+            snapshots[rnd] = {str(p.relative_to(work / "runs")): p.stat().st_mtime_ns
+                              for p in sorted((work / "runs").rglob("*")) if p.is_file()}
+    finally:
+        jax.config.update("jax_disable_most_optimizations", previous)
     print("smoke wall seconds:", {f"{a}/{b}": round(s, 1) for (a, b), s in seconds.items()})
     return {"work": work, "outs": outs, "docs": docs, "seconds": seconds,
             "snapshots": snapshots}
