@@ -33,7 +33,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -46,10 +45,11 @@ if __package__ in (None, ""):
 from experiments.arguments import add_common_arguments, resolve_paths  # noqa: E402
 from experiments.evaluation import cached_evaluation, net_predictor, rtss_predictor  # noqa: E402
 from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
-from experiments.reporting import (fmt, log, publish_section, read_json, save_figure,  # noqa: E402
-                                   save_png, save_table, write_json)
+from experiments.reporting import (fmt, log, publish_section, save_figure, save_png,  # noqa: E402
+                                   save_table)
 from experiments.scales import DATA_STYLE, SCALES, Scale, model_overrides, preset_name  # noqa: E402
-from experiments.workfolder import dataset_seeds, ensure_dataset  # noqa: E402
+from experiments.workfolder import (dataset_seeds, ensure_dataset, gijax_command,  # noqa: E402
+                                    metrics_records, rig_file_argument, train_run)
 from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "bundle_model"
@@ -105,8 +105,6 @@ TARGETS = {
 }
 
 
-def _command(argv: list) -> str:
-    return "gijax " + shlex.join(map(str, argv))
 
 
 # --------------------------------------------------------------------------- the mixture
@@ -139,12 +137,8 @@ def _rig_argument(work: Path, base: str) -> str:
     once, so the recorded command reproduces the data)."""
     if not base.startswith("layout-"):
         return base
-    from gijax.io.rigfile import save_rig
-
-    path = work / "rigs" / f"mix-{base}.yaml"
-    if not path.is_file():
-        save_rig(random_layout(int(base.split("-")[1])), path)
-    return str(path)
+    return rig_file_argument(work, f"mix-{base}",
+                             lambda: random_layout(int(base.split("-")[1])))
 
 
 def ensure_mixture_dataset(work: Path, scale: Scale, recipe: Recipe, index: int, role: str,
@@ -172,7 +166,7 @@ def ensure_mixture_dataset(work: Path, scale: Scale, recipe: Recipe, index: int,
     fovs = [round(math.degrees(float(c.fov)), 1) for c in rig.cameras]
     return {"role": role, "rig": base, "lens": lens, "fov_deg": fovs,
             "cameras": rig.num_cameras, "path": str(out), "samples": recipe.scenes,
-            "seed": seed, "style": DATA_STYLE, "command": _command(argv),
+            "seed": seed, "style": DATA_STYLE, "command": gijax_command(argv),
             "seconds": time.perf_counter() - t0}
 
 
@@ -232,29 +226,12 @@ def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) 
 
 
 def ensure_trained(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) -> dict:
-    """Train (or resume) the bundle's run to ``recipe.steps``; its record."""
-    from experiments.workfolder import last_logged_step, last_validation
-    from gijax.train.entry import train
-
-    run = run_folder(work, scale)
-    command = _command(train_argv(work, scale, recipe, seed, data))
-    done_file = run.with_name(run.name + ".done.json")
-    done = read_json(done_file)
-    if done and done.get("command") == command:
-        log(f"  {run.name}: reusing the finished run")
-        return {**done, "reused": True}
-    start = last_logged_step(run)
-    log(f"  {run.name}: training {recipe.steps} steps" +
-        (f" (resuming after step {start})" if start else "") + f" -> {run}")
-    t0 = time.perf_counter()
-    train(train_config(scale, recipe, seed), [d["path"] for d in data if d["role"].startswith("mix-")],
-          run, val=work / "data" / "val", progress=scale.progress)
-    seconds = time.perf_counter() - t0
-    record = {"run": str(run), "command": command, "steps": recipe.steps,
-              "resumed_from_step": start, "train_seconds": seconds,
-              "validation": last_validation(run), "finished_unix": time.time()}
-    write_json(done_file, record)
-    return {**record, "reused": False}
+    """Train (or resume) the bundle's run to ``recipe.steps``, or reuse it when finished; its
+    record."""
+    command = gijax_command(train_argv(work, scale, recipe, seed, data))
+    return train_run(run_folder(work, scale), command, train_config(scale, recipe, seed),
+                     [d["path"] for d in data if d["role"].startswith("mix-")],
+                     work / "data" / "val", scale.progress, {"model": MODEL})
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -338,9 +315,8 @@ def learning_curve(run: Path, path: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from experiments.workfolder import _metrics_records
 
-    recs = _metrics_records(run)
+    recs = metrics_records(run)
     steps = np.array([r["step"] for r in recs if "loss" in r])
     loss = np.array([r["loss"] for r in recs if "loss" in r])
     vals = [r for r in recs if r.get("split") == "val"]
@@ -385,7 +361,6 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
 
     from gijax.train.bundle import write_bundle
 
-    from experiments.workfolder import _metrics_records
 
     mix = [d for d in data if d["role"].startswith("mix-")]
     lenses = sum(1 for d in mix if d["role"].startswith("mix-lens-"))
@@ -407,7 +382,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
            "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "cameras", "samples",
                                        "seed") if k in d} for d in data],
            "checkpoint": "best by validation MAE",
-           "validation": [r for r in _metrics_records(run) if r.get("split") == "val"],
+           "validation": [r for r in metrics_records(run) if r.get("split") == "val"],
            "validation_metrics": "gijax definitions (labels clamped to the candidate range, "
                                  "pooled pixels)",
            "targets": targets, "learning_curve": "learning_curve.png",

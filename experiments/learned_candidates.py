@@ -39,7 +39,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -57,8 +56,9 @@ from experiments.provenance import provenance_markdown, provenance_record  # noq
 from experiments.reporting import (fmt, log, read_json, save_figure, save_png, save_table,
                                    publish_section, write_json)  # noqa: E402
 from experiments.scales import DATA_STYLE, TEST_RIGS, Scale, preset_name  # noqa: E402
-from experiments.workfolder import (check_held_out, dataset_seeds, ensure_trained,
-                                    render_argv, style_counts)  # noqa: E402
+from experiments.workfolder import (check_held_out, gijax_command, dataset_seeds,  # noqa: E402
+                                    ensure_trained, render_argv, rig_file_argument,
+                                    style_counts)
 from experiments import same_layout as S  # noqa: E402
 from gijax.bench.report import markdown_grid  # noqa: E402
 
@@ -107,8 +107,6 @@ SIZES = {
 }
 
 
-def _command(argv: list) -> str:
-    return "gijax " + shlex.join(map(str, argv))
 
 
 # --------------------------------------------------------------------------- the new rig
@@ -130,14 +128,7 @@ def ring_rig():
 def rig_argument(work: Path, rig: str) -> str:
     """What ``gijax render --rig`` takes for ``rig``: a built-in name, or for the ring its rig
     file in the work folder (written once, so that the recorded command reproduces the data)."""
-    if rig != RING:
-        return rig
-    from gijax.io.rigfile import save_rig
-
-    path = work / "rigs" / f"{RING}.yaml"
-    if not path.is_file():
-        save_rig(ring_rig(), path)
-    return str(path)
+    return rig if rig != RING else rig_file_argument(work, RING, ring_rig)
 
 
 # --------------------------------------------------------------------------- data
@@ -157,8 +148,9 @@ def ensure_extra_dataset(work: Path, scale: Scale, role: str, samples: int) -> d
     render_dataset(load_rig(arg), out, samples, seed=seed, image_scale=scale.image_scale,
                    pano=Panorama.hemisphere(*scale.pano_hw), style=DATA_STYLE,
                    progress=scale.progress, log=log)
+    command = gijax_command(render_argv(scale, arg, samples, seed, out))
     return {"role": role, "rig": rig, "path": str(out), "samples": samples, "seed": seed,
-            "style": DATA_STYLE, "command": _command(render_argv(scale, arg, samples, seed, out)),
+            "style": DATA_STYLE, "command": command,
             "seconds": time.perf_counter() - t0}
 
 
@@ -245,7 +237,7 @@ def ensure_adapted(work: Path, sizes: Sizes, run: dict, rig: str, loss: str, see
                    samples=sizes.adapt_samples)
     out = work / "adapt" / f"{run['preset']}_{rig}_{loss}_{key[:8]}.json"
     done_file = out.with_name(out.stem + ".done.json")
-    command = _command(adapt_argv(run, data, out, loss, sizes, seed))
+    command = gijax_command(adapt_argv(run, data, out, loss, sizes, seed))
     done = read_json(done_file)
     if done and done.get("command") == command and out.is_file():
         log(f"  {rig}, {loss}: reusing the adapted list {out}")

@@ -21,11 +21,24 @@ from experiments.reporting import log, read_json, write_json
 from experiments.scales import DATA_SEEDS, DATA_STYLE, Scale, model_overrides, preset_name
 
 
-def _command(argv: list) -> str:
+def gijax_command(argv: list) -> str:
+    """The shell command line of a ``gijax`` call's arguments (it also keys reuse)."""
     return "gijax " + shlex.join(map(str, argv))
 
 
 # --------------------------------------------------------------------------- data
+
+def rig_file_argument(work: Path, name: str, make_rig) -> str:
+    """What ``gijax render --rig`` takes for a rig that is not built in: its rig file
+    ``rigs/<name>.yaml`` in the work folder, written once from ``make_rig()``, so that the
+    recorded command reproduces the data."""
+    from gijax.io.rigfile import save_rig
+
+    path = work / "rigs" / f"{name}.yaml"
+    if not path.is_file():
+        save_rig(make_rig(), path)
+    return str(path)
+
 
 def render_argv(scale: Scale, rig: str, samples: int, seed: int, out: Path) -> list:
     """The ``gijax render`` command equivalent to :func:`ensure_dataset`'s call."""
@@ -54,7 +67,7 @@ def ensure_dataset(work: Path, scale: Scale, role: str) -> dict:
                    style=DATA_STYLE, progress=scale.progress, log=log)
     return {"role": role, "rig": rig, "path": str(out), "samples": samples,
             "seed": DATA_SEEDS[role], "style": DATA_STYLE,
-            "command": _command(render_argv(scale, rig, samples, DATA_SEEDS[role], out)),
+            "command": gijax_command(render_argv(scale, rig, samples, DATA_SEEDS[role], out)),
             "seconds": time.perf_counter() - t0}
 
 
@@ -105,8 +118,9 @@ def train_argv(work: Path, scale: Scale, model: str, seed: int,
     validation and seed."""
     preset = preset_name(scale, model)
     argv = ["train", "--preset", preset, "--data", work / "data" / "train",
-            "--out", run_folder(work, scale, model, candidates_lr is not None), "--steps", scale.steps, "--batch", scale.batch,
-            "--lr", scale.lr, "--val-every", scale.val_every, "--ckpt-every", scale.ckpt_every,
+            "--out", run_folder(work, scale, model, candidates_lr is not None),
+            "--steps", scale.steps, "--batch", scale.batch, "--lr", scale.lr,
+            "--val-every", scale.val_every, "--ckpt-every", scale.ckpt_every,
             "--seed", seed, "--workers", _workers(scale)]
     if scale.val_samples:
         argv += ["--val", work / "data" / "val"]
@@ -135,7 +149,8 @@ def train_config(scale: Scale, model: str, seed: int):
                        keep_best=bool(scale.val_samples), workers=_workers(scale))
 
 
-def _metrics_records(run_dir: Path) -> list:
+def metrics_records(run_dir: Path) -> list:
+    """The records of a run's ``metrics.jsonl`` (a line cut by an interruption is skipped)."""
     path = run_dir / "metrics.jsonl"
     out = []
     if path.is_file():
@@ -148,12 +163,41 @@ def _metrics_records(run_dir: Path) -> list:
 
 
 def last_logged_step(run_dir: Path) -> int:
-    return max([int(r["step"]) for r in _metrics_records(run_dir) if "loss" in r], default=0)
+    return max([int(r["step"]) for r in metrics_records(run_dir) if "loss" in r], default=0)
 
 
 def last_validation(run_dir: Path) -> Optional[dict]:
-    vals = [r for r in _metrics_records(run_dir) if r.get("split") == "val"]
+    vals = [r for r in metrics_records(run_dir) if r.get("split") == "val"]
     return vals[-1] if vals else None
+
+
+def train_run(run_dir: Path, command: str, config, data, val: Optional[Path], progress: bool,
+              record: dict) -> dict:
+    """Train ``config`` on ``data`` into ``run_dir`` (resuming after its newest checkpoint), or
+    reuse the finished run when its done-record holds the same ``command`` and step count.
+    Returns the done-record: ``record`` plus the command, timing and last validation."""
+    from gijax.train.entry import train
+
+    done_file = run_dir.with_name(run_dir.name + ".done.json")
+    done = read_json(done_file)
+    if done and done.get("command") == command and done.get("steps") == config.steps:
+        log(f"  {run_dir.name}: reusing the finished run {run_dir}")
+        return {**done, "reused": True}
+    start = last_logged_step(run_dir)
+    log(f"  {run_dir.name}: training {config.steps} steps" +
+        (" with the list learned" if config.learn_candidates else "") +
+        (f" (resuming after step {start})" if start else "") + f" -> {run_dir}")
+    t0 = time.perf_counter()
+    train(config, data, run_dir, val=val, progress=progress)
+    seconds = time.perf_counter() - t0
+    out = {**record, "run": str(run_dir), "command": command, "steps": config.steps,
+           "resumed_from_step": start, "train_seconds": seconds,
+           "seconds_per_step": seconds / max(config.steps - start, 1),
+           "validation": last_validation(run_dir), "finished_unix": time.time()}
+    if config.learn_candidates:
+        out["final_candidates"] = (read_json(run_dir / "candidates.json") or {}).get("candidates")
+    write_json(done_file, out)
+    return {**out, "reused": False}
 
 
 def ensure_trained(work: Path, scale: Scale, model: str, seed: int,
@@ -161,34 +205,12 @@ def ensure_trained(work: Path, scale: Scale, model: str, seed: int,
     """Train one model to ``scale.steps`` (resuming), or reuse a finished run; its record.
     With ``candidates_lr`` the candidate list is learned too (its own run folder), and the
     record holds the final list."""
-    from gijax.train.entry import train
-
-    preset = preset_name(scale, model)
     learned = candidates_lr is not None
-    run_dir = run_folder(work, scale, model, learned)
-    done_file = run_dir.with_name(run_dir.name + ".done.json")
-    command = _command(train_argv(work, scale, model, seed, candidates_lr))
-    done = read_json(done_file)
-    if done and done.get("command") == command and done.get("steps") == scale.steps:
-        log(f"  {run_dir.name}: reusing the finished run {run_dir}")
-        return {**done, "reused": True}
-    start = last_logged_step(run_dir)
-    log(f"  {run_dir.name}: training {scale.steps} steps" +
-        (" with the list learned" if learned else "") +
-        (f" (resuming after step {start})" if start else "") + f" -> {run_dir}")
     config = train_config(scale, model, seed)
     if learned:
         config = dataclasses.replace(config, learn_candidates=True, candidates_lr=candidates_lr)
-    t0 = time.perf_counter()
-    train(config, work / "data" / "train", run_dir,
-          val=work / "data" / "val" if scale.val_samples else None, progress=scale.progress)
-    seconds = time.perf_counter() - t0
-    record = {"model": model, "preset": preset, "run": str(run_dir), "command": command,
-              "steps": scale.steps, "resumed_from_step": start, "train_seconds": seconds,
-              "seconds_per_step": seconds / max(scale.steps - start, 1),
-              "validation": last_validation(run_dir), "finished_unix": time.time()}
-    if learned:
-        record["final_candidates"] = (read_json(run_dir / "candidates.json") or {}).get(
-            "candidates")
-    write_json(done_file, record)
-    return {**record, "reused": False}
+    return train_run(run_folder(work, scale, model, learned),
+                     gijax_command(train_argv(work, scale, model, seed, candidates_lr)), config,
+                     work / "data" / "train",
+                     work / "data" / "val" if scale.val_samples else None, scale.progress,
+                     {"model": model, "preset": preset_name(scale, model)})

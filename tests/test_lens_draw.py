@@ -82,9 +82,9 @@ def test_unit_radius_is_each_model_at_unit_focal_length():
     """unit_radius against the closed forms: theta (equidistant), theta (1 + k1 theta^2 +
     k2 theta^4) (KB), and the Double Sphere radius of a unit ray."""
     th = np.linspace(0.01, 2.0, 7)
-    np.testing.assert_allclose(unit_radius("equidistant", {}, th), th)
+    np.testing.assert_allclose(unit_radius("equidistant", {}, th), th, rtol=1e-6)
     np.testing.assert_allclose(unit_radius("kb", dict(k1=0.02, k2=-0.001), th),
-                               th * (1 + 0.02 * th**2 - 0.001 * th**4), rtol=1e-12)
+                               th * (1 + 0.02 * th**2 - 0.001 * th**4), rtol=1e-6)
     xi, a = -0.1, 0.55
     s, c = np.sin(th), np.cos(th)
     d2 = np.sqrt(s**2 + (xi + c) ** 2)

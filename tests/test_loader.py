@@ -96,6 +96,32 @@ def test_deterministic_per_seed_and_epoch(reader):
     assert not np.array_equal(e0, ec)  # seeds differ
 
 
+def test_loaders_sharing_one_pool_give_their_own_streams_and_leave_it_running(reader):
+    """A mixture of datasets loads in one shared pool: each loader's batches are those it gives
+    with its own threads, and closing a loader cancels only its loads, not the pool."""
+    import concurrent.futures
+    import threading
+
+    before = threading.active_count()
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        with _loader(reader, seed=7) as own_a, _loader(reader, seed=8) as own_b:
+            ref_a, ref_b = _take(own_a, 3), _take(own_b, 3)
+        a, b = _loader(reader, seed=7, pool=pool), _loader(reader, seed=8, pool=pool)
+        got_a, got_b = [], []
+        for _ in range(3):                 # interleaved, as a mixed stream draws them
+            got_a.append(next(a))
+            got_b.append(next(b))
+        a.close()
+        assert pool.submit(lambda: 41 + 1).result() == 42     # still running for the others
+        got_b.append(next(b))
+        b.close()
+        assert threading.active_count() <= before + 2          # no threads of their own
+    for u, v in zip(ref_a + ref_b, got_a + got_b[:3]):
+        for k in u:
+            np.testing.assert_array_equal(u[k], v[k])
+    assert got_b[3]["index"].shape == (2,)
+
+
 def test_resume_mid_epoch_yields_exactly_the_rest(reader):
     with _loader(reader, mask_augmentation=True) as full:
         ref = _take(full, 9)  # crosses the epoch boundary after 5 batches

@@ -29,7 +29,6 @@ import numpy as np
 
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.rig import Rig, with_occlusion_masks
-from gijax.numerics import safe_sqrt
 
 Array = jax.Array
 
@@ -71,20 +70,23 @@ def unit_radius(model: str, shape: dict, theta: Array) -> Array:
     """The model's image radius at unit focal length for a ray ``theta`` (rad) off the axis.
 
     ``shape`` holds the model's shape parameters: none for 'equidistant', ``k1``..``k4`` for
-    'kb', ``xi`` and ``alpha`` for 'ds'.
+    'kb' (missing ones are zero), ``xi`` and ``alpha`` for 'ds'. The radius is the camera
+    model's own projection (unit focal length, principal point at the origin) of the ray
+    ``(sin theta, 0, cos theta)``, so a lens draw and the camera it makes can never disagree.
     """
-    if model == "equidistant":
-        return theta
+    if model not in LENS_MODELS:
+        raise ValueError(f"lens model {model!r} is not drawn; expected one of {LENS_MODELS}")
+    theta = jnp.asarray(theta)
+    dtype = jnp.result_type(theta, *shape.values(), jnp.float32)
+    one, zero = jnp.ones((), dtype), jnp.zeros((), dtype)
+    params = dict(shape)
     if model == "kb":
-        t2 = theta * theta
-        k = [shape.get(n, 0.0) for n in ("k1", "k2", "k3", "k4")]
-        return theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
-    if model == "ds":
-        xi, alpha = shape["xi"], shape["alpha"]
-        s, c = jnp.sin(theta), jnp.cos(theta)
-        d2 = safe_sqrt(s * s + (xi + c) ** 2)          # the unit ray's second-sphere distance
-        return s / (alpha * d2 + (1.0 - alpha) * (xi + c))
-    raise ValueError(f"lens model {model!r} is not drawn; expected one of {LENS_MODELS}")
+        params = {n: params.get(n, zero) for n in ("k1", "k2", "k3", "k4")}
+    cam = cam_lib.CAMERA_MODELS[model](fx=one, fy=one, cx=zero, cy=zero, **params,
+                                       fov=jnp.asarray(2.0 * jnp.pi, dtype), width=1, height=1)
+    ray = jnp.stack([jnp.sin(theta), jnp.zeros_like(theta), jnp.cos(theta)], axis=-1)
+    pixels, _ = cam_lib.project(cam, ray.astype(dtype))
+    return pixels[..., 0]
 
 
 def _uniform(key, lo_hi, dtype):

@@ -83,6 +83,10 @@ class Loader:
         (:func:`gijax.data.augment.augment_sample`), drawn from ``(seed, epoch, index)``;
         None (or a config that is all off) leaves the images alone. For training only.
       workers: loader threads (0 loads in the calling thread).
+      pool: an executor to load in instead of the loader's own threads (``workers`` is then
+        ignored), shared by several loaders so that a mixture of datasets does not start
+        threads per dataset; its owner shuts it down, :meth:`close` only cancels this
+        loader's pending loads.
       process_index, process_count: this process's shard for multi-host training.
       state: a :meth:`state` to resume from.
       drop_last: drop the incomplete last batch of an epoch (keeps shapes static).
@@ -96,7 +100,8 @@ class Loader:
                  mask_augmentation: bool = False, workers: int = 2, process_index: int = 0,
                  process_count: int = 1, state: dict | None = None, drop_last: bool = True,
                  prefetch: int = 2, num_epochs: int | None = None,
-                 use_sample_masks: bool = True, augment: AugmentConfig | None = None):
+                 use_sample_masks: bool = True, augment: AugmentConfig | None = None,
+                 pool: concurrent.futures.Executor | None = None):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1; found {batch_size}")
         if not 0 <= process_index < process_count:
@@ -136,8 +141,10 @@ class Loader:
         self._grids = None
         if is_homogeneous(self.rig):
             self._grids = surrogate_maps(self.rig, surrogate)
-        self._pool = (concurrent.futures.ThreadPoolExecutor(self.workers, "gijax-loader")
-                      if self.workers > 0 else None)
+        self._owns_pool = pool is None
+        if pool is None and self.workers > 0:
+            pool = concurrent.futures.ThreadPoolExecutor(self.workers, "gijax-loader")
+        self._pool = pool
 
     # -- state
 
@@ -260,7 +267,13 @@ class Loader:
     def close(self) -> None:
         """Stop the worker threads (pending loads are cancelled)."""
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            if self._owns_pool:
+                self._pool.shutdown(wait=True, cancel_futures=True)
+            else:
+                for jobs in self._pending:
+                    for job in jobs:
+                        job.cancel()
+                concurrent.futures.wait([j for jobs in self._pending for j in jobs])
             self._pool = None
         self._pending.clear()
 

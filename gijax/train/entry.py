@@ -4,6 +4,7 @@ experiments call it directly)."""
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import os
 from pathlib import Path
@@ -125,10 +126,16 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
         train_rig = load_rig(rig).replace(panorama_rotation=reader.rig.panorama_rotation)
     else:
         train_rig = reader.rig
+
+    # Several datasets load in one pool of ``workers`` threads, not ``workers`` each.
+    pool = (concurrent.futures.ThreadPoolExecutor(config.workers, "gijax-loader")
+            if len(readers) > 1 and config.workers > 0 else None)
+
     def stream_factory(r, r_rig):
         return dataset_stream_factory(r, r_rig, config.batch_size, config.seed, mc.surrogate_hw,
                                       mask_augmentation=mc.mask_augmentation,
-                                      workers=config.workers, augment=augment_preset(config.augment))
+                                      workers=config.workers, pool=pool,
+                                      augment=augment_preset(config.augment))
 
     if len(readers) == 1:
         make_stream, train_rigs = stream_factory(reader, train_rig), train_rig
@@ -143,13 +150,17 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
                                               config.batch_size, mc.surrogate_hw,
                                               config.val_batches)
         val_rig = val_reader.rig
-    trainer = Trainer(config, out, train_rigs, make_stream, make_val,
-                      rig_name=rig or ", ".join(map(str, datas)),
-                      progress=progress, val_rig=val_rig)
     try:
-        history = trainer.fit()
+        trainer = Trainer(config, out, train_rigs, make_stream, make_val,
+                          rig_name=rig or ", ".join(map(str, datas)),
+                          progress=progress, val_rig=val_rig)
+        try:
+            history = trainer.fit()
+        finally:
+            trainer.close()
     finally:
-        trainer.close()
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
     return TrainingResult(trainer.start_step, history)
 
 

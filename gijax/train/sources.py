@@ -114,9 +114,10 @@ def open_dataset(path: str | Path, what: str = "training", allow_partial: bool =
 
 def dataset_stream_factory(reader, rig, batch_size: int, seed: int, surrogate_hw, *,
                            mask_augmentation: bool = False, workers: int = 2,
-                           what: str = "training", augment=None) -> Callable:
+                           what: str = "training", augment=None, pool=None) -> Callable:
     """Factory for :class:`gijax.data.Loader` streams over ``reader`` (global ``batch_size``);
-    ``augment`` is the loader's :class:`gijax.data.augment.AugmentConfig` (None: off)."""
+    ``augment`` is the loader's :class:`gijax.data.augment.AugmentConfig` (None: off); ``pool``
+    a shared executor to load in (see :class:`gijax.data.Loader`)."""
     from gijax.data import Loader
     from gijax.geometry.panorama import Panorama
 
@@ -134,7 +135,7 @@ def dataset_stream_factory(reader, rig, batch_size: int, seed: int, surrogate_hw
                       surrogate=Panorama.hemisphere(*surrogate_hw), shuffle=True,
                       mask_augmentation=mask_augmentation, workers=workers, augment=augment,
                       process_index=jax.process_index(), process_count=jax.process_count(),
-                      state=state)
+                      state=state, pool=pool)
 
     return make
 
