@@ -71,6 +71,38 @@ def test_run_folder_best_and_latest_restore_exactly_and_read_only(run):
         load_model(folder, which="newest")
 
 
+def test_reads_keep_sigint_as_python_has_it_and_asyncio_never_swaps_it(run, monkeypatch):
+    """orbax's asyncio.run calls would swap the SIGINT handler around each read (formatting the
+    repr of a task holding the arrays each time); the store installs a plain handler for the
+    duration instead: asyncio never calls signal.signal, Ctrl-C still raises
+    KeyboardInterrupt, and Python's default handler is back afterwards."""
+    import signal
+    import threading
+
+    from gijax.store import checkpoints as ckpt
+
+    outer = signal.signal(signal.SIGINT, signal.default_int_handler)   # as in a plain script
+    try:
+        installed = []
+        real = signal.signal
+        monkeypatch.setattr(signal, "signal", lambda sig, h: installed.append(h) or real(sig, h))
+        load_model(run["folder"])
+        monkeypatch.undo()
+        # Only the store's own swap (in and out, per orbax call), never asyncio's handler.
+        assert installed and set(map(id, installed)) <= {id(ckpt._keyboard_interrupt),
+                                                         id(signal.default_int_handler)}
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with ckpt.plain_sigint():
+            with pytest.raises(KeyboardInterrupt):
+                signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
+        worker = threading.Thread(target=lambda: ckpt.plain_sigint().__enter__())
+        worker.start()
+        worker.join()                             # off the main thread: nothing is touched
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, outer)
+
+
 def test_checkpoint_of_another_configuration_is_named_not_skipped(run, tmp_path):
     folder = tmp_path / "other"
     folder.mkdir()

@@ -1327,9 +1327,12 @@ def _example(label, seed):
 
 
 def _run(label, examples):
-    """:func:`_program` on a list of examples: ``(outputs, scalar, gradient)`` per example."""
-    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *examples)
-    batched = _program(label)(*stacked)
+    """:func:`_program` on a list of examples: ``(outputs, scalar, gradient)`` per example.
+
+    Stacking and slicing are NumPy's: as eager JAX ops each new shape would be one more
+    compilation, and this module compiles enough."""
+    stacked = jax.tree_util.tree_map(lambda *x: np.stack([np.asarray(v) for v in x]), *examples)
+    batched = jax.device_get(_program(label)(*stacked))
     return [jax.tree_util.tree_map(lambda x: x[i], batched) for i in range(len(examples))]
 
 
@@ -1356,15 +1359,15 @@ def test_grad_equals_central_differences(label):
         _, _, grads = _run(label, [args, _example(label, 1)])[0]
         rng = np.random.default_rng(3)
         direction = [jax.tree_util.tree_map(
-            lambda x: jnp.asarray(rng.normal(size=np.shape(x)), F64), args[i]) for i in c.diff]
-        slope = sum(float(jnp.vdot(g, v)) for g, v in zip(jax.tree_util.tree_leaves(grads),
-                                                          jax.tree_util.tree_leaves(direction)))
+            lambda x: rng.normal(size=np.shape(x)), args[i]) for i in c.diff]
+        slope = sum(float(np.vdot(g, v)) for g, v in zip(jax.tree_util.tree_leaves(grads),
+                                                         jax.tree_util.tree_leaves(direction)))
         h = 1e-6
 
         def moved(sign):
             a = list(args)
             for i, v in zip(c.diff, direction):
-                a[i] = jax.tree_util.tree_map(lambda x, d: x + sign * h * d, a[i], v)
+                a[i] = jax.tree_util.tree_map(lambda x, d: np.asarray(x) + sign * h * d, a[i], v)
             return a
 
         (_, plus, _), (_, minus, _) = _run(label, [moved(1.0), moved(-1.0)])

@@ -23,8 +23,9 @@ Array = jax.Array
 
 
 def surrogate_grid(cam, pano: Panorama) -> tuple[Array, Array]:
-    """(H, W, 2) fisheye pixel coordinates of every surrogate pixel, and their validity."""
-    rays = ray_grid(pano)
+    """(H, W, 2) fisheye pixel coordinates of every surrogate pixel, and their validity (in the
+    camera's precision: a float64 camera gets float64 rays)."""
+    rays = ray_grid(pano, jnp.result_type(cam.fx, jnp.float32))
     return cam_lib.project(cam, rays)
 
 

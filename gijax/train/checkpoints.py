@@ -51,8 +51,9 @@ class CheckpointStore:
     # ------------------------------------------------------------------ saving
     def save(self, step: int, state: Any, meta: dict) -> None:
         """Periodic checkpoint of ``state`` at ``step`` (blocks until it is complete)."""
-        self.periodic.save(step, args=self._args(state, meta), force=True)
-        self.periodic.wait_until_finished()
+        with ckpt.plain_sigint():
+            self.periodic.save(step, args=self._args(state, meta), force=True)
+            self.periodic.wait_until_finished()
 
     @staticmethod
     def _args(state: Any, meta: dict) -> ocp.args.Composite:
@@ -76,9 +77,10 @@ class CheckpointStore:
         if not better:
             return False
         meta = dict(meta, metrics={k: float(v) for k, v in metrics.items()})
-        self.best.save(step, args=self._args(state, meta), metrics={self.best_metric: value},
-                       force=True)
-        self.best.wait_until_finished()
+        with ckpt.plain_sigint():
+            self.best.save(step, args=self._args(state, meta), metrics={self.best_metric: value},
+                           force=True)
+            self.best.wait_until_finished()
         return True
 
     # ------------------------------------------------------------------ resuming
