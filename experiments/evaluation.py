@@ -68,6 +68,28 @@ def compile_once(tag, args: tuple, build: Callable):
     return _COMPILED[key]
 
 
+_MODELS: dict = {}
+
+
+def _weights_fingerprint(path: Path) -> tuple:
+    """Every file of a run folder or bundle by name, size and modification time: a resumed,
+    retrained or rewritten model has another fingerprint."""
+    path = Path(path)
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    return tuple((str(p), st.st_size, st.st_mtime_ns) for p in files for st in [p.stat()])
+
+
+def loaded_model(run_dir: Path):
+    """``gijax.store.load_model(run_dir, 'best')``, read once per process for the same files:
+    a script evaluates each model on several test sets and candidate lists."""
+    from gijax.store import load_model
+
+    key = (str(Path(run_dir).resolve()), _weights_fingerprint(run_dir))
+    if key not in _MODELS:
+        _MODELS[key] = load_model(run_dir, "best")
+    return _MODELS[key]
+
+
 @dataclasses.dataclass
 class Predictor:
     """``fn(images uint8 (N,h,w,3), masks (N,h,w)) -> (inv_distance (H,W), estimated (H,W))``
@@ -91,11 +113,10 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
 
     from gijax.candidates.spec import resolve_candidates
     from gijax.model import forward as model_forward, make_grids
-    from gijax.store import load_model
     from gijax.sweep.surrogate import as_float_image
     from gijax.train.trainer import model_rig
 
-    model, mc, train_cand = load_model(run_dir, "best")
+    model, mc, train_cand = loaded_model(run_dir)
     if mc.cost_volume == "concat" and rig.num_cameras != mc.num_cameras:
         raise ValueError(f"{mc.name} concatenates exactly {mc.num_cameras} cameras; the rig has "
                          f"{rig.num_cameras}")
