@@ -98,8 +98,8 @@ def render_probe(rig_file: Path, ref: Path, out: Path, seed: int) -> None:
     cmd = [sys.executable, "-m", "gijax", "render", "--rig", str(rig_file), "--samples",
            str(SAMPLES), "--out", str(out), "--seed", "3", "--pano", "32x8"]
     csv = out / "traj_0000" / "files.csv"
-    proc = subprocess.Popen(cmd, env=child_env(CACHE), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(cmd, env=child_env(CACHE, optimised=True),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ready = lambda: csv.exists() and len(csv.read_text().splitlines()) > target  # noqa: E731
     assert kill_when(proc, ready, rng, jitter=0.1), f"render ended before the kill ({target})"
     result = check_dataset(out)                   # a dataset that knows it is partial
@@ -107,7 +107,8 @@ def render_probe(rig_file: Path, ref: Path, out: Path, seed: int) -> None:
     assert target <= result.samples < SAMPLES and not result.complete
     with pytest.raises(ValueError, match=f"{result.samples} of the {SAMPLES} samples"):
         DatasetReader(out)
-    r = subprocess.run(cmd, env=child_env(CACHE), capture_output=True, text=True, timeout=240)
+    r = subprocess.run(cmd, env=child_env(CACHE, optimised=True), capture_output=True,
+                       text=True, timeout=240)
     assert r.returncode == 0, r.stderr[-3000:]
     assert _tree(out) == _tree(ref), seed          # byte-identical, no lock or partial left
 
@@ -120,8 +121,8 @@ def render_reference(tmp_path_factory):
     ref = d / "ref"
     r = subprocess.run([sys.executable, "-m", "gijax", "render", "--rig", str(rig_file),
                         "--samples", str(SAMPLES), "--out", str(ref), "--seed", "3", "--pano",
-                        "32x8"], env=child_env(CACHE), capture_output=True, text=True,
-                       timeout=240)
+                        "32x8"], env=child_env(CACHE, optimised=True), capture_output=True,
+                       text=True, timeout=240)
     assert r.returncode == 0, r.stderr[-3000:]
     return rig_file, ref
 

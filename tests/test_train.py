@@ -98,6 +98,7 @@ def _event_records(path: Path):
     return out
 
 
+@pytest.mark.usefixtures("quick_compiles_here")
 def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     from gijax.cli import main
 
@@ -173,6 +174,7 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
           "x.json")
 
 
+@pytest.mark.usefixtures("quick_compiles_here")
 def test_all_checkpoints_corrupt_is_a_clear_error(tmp_path):
     import jax.numpy as jnp
 
@@ -242,6 +244,7 @@ def test_grad_accum_and_bf16_step_agree_with_plain_step():
     assert all(a.dtype == b.dtype == jnp.float32 for a, b in zip(p0, p1))   # params stay f32
 
 
+@pytest.mark.usefixtures("quick_compiles_here")
 def test_learned_candidate_list_trains_is_saved_and_is_what_the_run_predicts_with(tmp_path):
     """--learn-candidates: the list moves with the network, keeps its ends, is logged at each
     validation, written to candidates.json, stored in the checkpoints and returned (and bundled)
@@ -314,6 +317,7 @@ def test_mixed_stream_draws_in_proportion_and_resumes_exactly():
         mixed_stream_factory([array_stream_factory(a, 2, 0)], [0], 0)(None)
 
 
+@pytest.mark.usefixtures("quick_compiles_here")
 def test_each_batch_of_mixed_datasets_is_trained_with_its_own_rig(tmp_path):
     """A run over two datasets with different rigs passes each batch's own rig to the step."""
     from gijax.train.sources import array_stream_factory, mixed_stream_factory
@@ -367,6 +371,7 @@ def test_mixed_training_datasets_must_share_the_label_panorama(tmp_path):
               rig="paper-train", progress=False)
 
 
+@pytest.mark.usefixtures("quick_compiles_here")
 def test_calibration_error_turns_each_steps_rig_within_its_bound(tmp_path):
     """--calibration-error 0.5: every step's rig has each camera turned by a rotation of at
     most 0.5 degrees (measured from the rotation matrices), a new one each step, the same one
@@ -406,6 +411,7 @@ def test_calibration_error_turns_each_steps_rig_within_its_bound(tmp_path):
         _config(calibration_error_deg=-1.0)
 
 
+@pytest.mark.usefixtures("quick_compiles_here")
 def test_non_finite_loss_stops_the_run_before_it_is_saved(tmp_path):
     """A batch that makes the loss NaN at step 3 stops training with an error naming step 3,
     although losses are read one step late; the checkpoints end at step 2."""

@@ -71,13 +71,20 @@ if __name__ == "__main__":
 '''
 
 
-def child_env(cache_dir):
+def child_env(cache_dir, optimised=False):
+    """The environment of a child process: this checkout importable, the shared compile cache,
+    CPU only, and (unless ``optimised``) no XLA optimisation passes."""
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     env["JAX_COMPILATION_CACHE_DIR"] = str(cache_dir)
     env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
     env["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "0"
     env["JAX_PLATFORMS"] = "cpu"
+    # Training children check orchestration (checkpoints, kills, resumes, sharding) against
+    # other children, so they compile without XLA's optimisation passes, 2-3x faster; the
+    # numerics of the optimised train step are checked in-process (test_train.py). Renders
+    # keep the passes: unoptimised, the renderer runs about 4x slower.
+    env["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "0" if optimised else "1"
     return env
 
 
