@@ -27,9 +27,8 @@ from gijax.data.reader import DatasetReader
 from gijax.io.rigfile import save_rig
 from gijax.train.tbwriter import event_step, read_records
 from test_data_format import _tree, tiny_rig
-from test_train_faults import child_env, losses, run_child, script  # noqa: F401 - fixture
+from test_train_faults import CACHE, child_env, losses, run_child, script  # noqa: F401 - fixture
 
-CACHE = Path(os.environ.get("GIJAX_TEST_JAX_CACHE", "/tmp/gijax-test-jax-cache"))
 STEPS = 6
 SAMPLES = 40          # rendering a tiny sample takes ~0.05 s: enough of them to kill inside
 

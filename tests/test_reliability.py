@@ -28,9 +28,8 @@ from gijax.data.writer import DatasetWriter, write_dataset
 from gijax.io.lock import LOCK_FILE, FolderLock, FolderLockedError
 from gijax.io.rigfile import save_rig
 from test_data_format import PANO, synthetic_sample, tiny_rig
-from test_train_faults import child_env, run_child, script  # noqa: F401 - fixture
+from test_train_faults import CACHE, child_env, run_child, script  # noqa: F401 - fixture
 
-CACHE = Path(os.environ.get("GIJAX_TEST_JAX_CACHE", "/tmp/gijax-test-jax-cache"))
 G8 = [0.5, 0.60103325, 0.73863074, 0.94007016, 1.26849604, 1.91086214, 3.77357055, 100.0]
 
 

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from test_train_faults import CHILD
+from test_train_faults import CACHE, CHILD
 
 # The helpers of the child script (tiny network overrides, in-memory samples, rig) run here too.
 _NS: dict = {}
@@ -21,7 +21,7 @@ TINY, CANDIDATES, tiny_arrays, tiny_rig = (_NS[k] for k in ("TINY", "CANDIDATES"
 @pytest.fixture(scope="module", autouse=True)
 def compile_cache():
     """Share compiled programs with the subprocess tests (same cache folder)."""
-    cache = os.environ.get("GIJAX_TEST_JAX_CACHE", "/tmp/gijax-test-jax-cache")
+    cache = str(CACHE)
     old = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs,
            jax.config.jax_persistent_cache_min_entry_size_bytes)
     jax.config.update("jax_compilation_cache_dir", cache)

@@ -71,6 +71,10 @@ if __name__ == "__main__":
 '''
 
 
+# The compile cache the subprocess tests share with each other and with test_train.py.
+CACHE = Path(os.environ.get("GIJAX_TEST_JAX_CACHE", "/tmp/gijax-test-jax-cache"))
+
+
 def child_env(cache_dir, optimised=False):
     """The environment of a child process: this checkout importable, the shared compile cache,
     CPU only, and (unless ``optimised``) no XLA optimisation passes."""
@@ -112,7 +116,7 @@ def run_child(script, run, *extra, cache, timeout=240):
 
 
 def test_kill_resume_matches_uninterrupted(script, tmp_path):
-    cache = Path(os.environ.get("GIJAX_TEST_JAX_CACHE", "/tmp/gijax-test-jax-cache"))
+    cache = CACHE
     ref_run, run = tmp_path / "ref", tmp_path / "run"
     ref = run_child(script, ref_run, cache=cache)
     assert ref.returncode == 0, ref.stderr[-3000:]

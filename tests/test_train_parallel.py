@@ -1,15 +1,13 @@
 """Data parallelism: 4 forced CPU devices and two processes agree with one device."""
 
-import os
 import socket
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from test_train_faults import CHILD, child_env
+from test_train_faults import CACHE, CHILD, child_env
 
 # Runs one training step of the volume-loss variant (global batch 4) on a mesh of the given
 # devices and saves the resulting state. Modes: 'devices' compares a 1-device and a 4-device mesh in one process;
@@ -66,7 +64,7 @@ def results(tmp_path_factory):
     d = tmp_path_factory.mktemp("parallel")
     script = d / "parallel_child.py"
     script.write_text(PARALLEL)
-    cache = Path(os.environ.get("GIJAX_TEST_JAX_CACHE", "/tmp/gijax-test-jax-cache"))
+    cache = CACHE
     env4 = child_env(cache)
     env4["XLA_FLAGS"] = env4.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4"
     r = subprocess.run([sys.executable, str(script), "devices", str(d)], env=env4,
