@@ -399,3 +399,20 @@ def test_scale_camera_keeps_pixel_centre_convention():
     # Pixel u covers [u - 0.5, u + 0.5]: edges (u + 0.5) scale by the factor.
     np.testing.assert_allclose((np.asarray(a)[ok] + 0.5) * 0.5 - 0.5, np.asarray(b)[ok],
                                atol=2e-4)
+
+
+def test_camera_models_of_one_layout_have_distinct_tree_structures():
+    """A Double Sphere and an EUCM camera have seven leaves each; their tree structures must
+    still differ, or a jit cache may run one model's compiled program on the other (jaxlib's
+    dataclass registration compares structures without their class). Leaves keep their names."""
+    ds = C.make_camera("ds", dict(fx=1.0, fy=1.0, cx=5.0, cy=5.0, xi=0.0, alpha=0.3), 10, 10)
+    eu = C.make_camera("eucm", dict(fx=1.0, fy=1.0, cx=5.0, cy=5.0, alpha=0.3, beta=1.0), 10, 10)
+    assert jax.tree.structure(ds) != jax.tree.structure(eu)
+    assert jax.tree.structure(ds) == jax.tree.structure(C.scale_camera(ds, 1.0))
+    paths = [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_flatten_with_path(eu)[0]]
+    assert paths == [".fx", ".fy", ".cx", ".cy", ".alpha", ".beta", ".fov"]
+    back = jax.tree.unflatten(jax.tree.structure(eu), jax.tree.leaves(eu))
+    assert type(back) is C.EUCM and (back.width, back.height) == (10, 10)
+    proj = jax.jit(lambda cam: C.project(cam, jnp.array([0.0, 0.9, -0.2]))[0])
+    np.testing.assert_allclose(proj(ds), C.project(ds, jnp.array([0.0, 0.9, -0.2]))[0])
+    np.testing.assert_allclose(proj(eu), C.project(eu, jnp.array([0.0, 0.9, -0.2]))[0])

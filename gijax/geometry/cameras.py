@@ -94,14 +94,32 @@ def _to_pixels(cam, mx: Array, my: Array) -> Array:
 
 
 def _camera(cls=None, *, params: tuple[str, ...]):
-    """Register a frozen dataclass as a pytree: intrinsics are leaves, the size is static."""
+    """Register a frozen dataclass as a pytree: intrinsics are leaves, the size is static.
+
+    Registered as a custom node, not with ``jax.tree_util.register_dataclass``: jaxlib compares
+    dataclass tree structures without their class, so a Double Sphere and an EUCM camera (seven
+    leaves each, same size) had equal structures, and a jit cache could hand one model the
+    other's compiled program whenever their hashes met in a bucket.
+    """
 
     def wrap(cls):
         cls = dataclasses.dataclass(frozen=True)(cls)
         cls.PARAMS = params
-        return jax.tree_util.register_dataclass(
-            cls, data_fields=[*params, "fov"], meta_fields=["width", "height"]
-        )
+        names = (*params, "fov")
+        keys = tuple(jax.tree_util.GetAttrKey(n) for n in names)
+
+        def flatten_with_keys(cam):
+            leaves = tuple((k, getattr(cam, n)) for k, n in zip(keys, names))
+            return leaves, (cam.width, cam.height)
+
+        def flatten(cam):
+            return tuple(getattr(cam, n) for n in names), (cam.width, cam.height)
+
+        def unflatten(size, leaves):
+            return cls(**dict(zip(names, leaves)), width=size[0], height=size[1])
+
+        jax.tree_util.register_pytree_with_keys(cls, flatten_with_keys, unflatten, flatten)
+        return cls
 
     return wrap
 
