@@ -248,3 +248,32 @@ def test_gijax_bench_command_writes_json_and_markdown(tmp_path, capsys):
     assert "quick suite" in capsys.readouterr().out
     with pytest.raises(SystemExit):  # argparse rejects an unknown case name
         main(["bench", "--cases", "nope"])
+
+
+def test_isolated_case_configs_and_table():
+    """The isolated case: '-plain' swaps in plain features and nothing else; its table shows
+    whole / sum and the peaks next to the PyTorch reference; it never runs unless named."""
+    import dataclasses
+
+    from gijax.bench.isolated import PYTORCH_REFERENCE, bench_config
+    from gijax.bench.suite import DEFAULT_CASES, SUITES, case_tables
+    from gijax.nn.presets import get_preset
+
+    plain = bench_config("G16VV-cpu-plain")
+    base = get_preset("G16VV-cpu")
+    assert base.features != "plain" and plain.features == "plain"
+    assert dataclasses.replace(plain, name=base.name, features=base.features) == base
+    assert bench_config("G16V-released") == get_preset("G16V-released")
+    assert "isolated" not in DEFAULT_CASES
+    assert set(PYTORCH_REFERENCE) <= set(SUITES["full"].isolated_presets)
+    row = {"preset": "G16VV-plain", "features_s": 0.7, "sweep_s": 0.1, "cost_volume_s": 0.1,
+           "unet_s": 2.5, "regress_s": 0.02, "sum_s": 3.42, "whole_s": 3.4,
+           "whole_over_sum": 3.4 / 3.42, "peak_gb": 1.31, "pytorch_s": 5.1,
+           "pytorch_peak_gb": 1.46, "onnx_mb": 204.0, "ort_default_s": 3.9,
+           "ort_default_peak_gb": 2.9, "ort_low_s": 4.4, "ort_low_peak_gb": 0.98}
+    tables = case_tables({"calibration": {"rows": []}, "cases": {"isolated": {"rows": [row]}}})
+    title, rows, cols = tables[-1]
+    assert "fresh processes" in title
+    text = report.markdown_table(rows, cols)
+    assert "whole / sum" in text and "| G16VV-plain |" in text
+    assert "| 0.99 |" in text and "| 1.31 |" in text and "| 0.98 |" in text

@@ -395,3 +395,55 @@ def test_onnx_predictor_follows_the_image_size_policy(setup):
     assert np.nanmean(np.abs(out["inv_distance"] - direct["inv_distance"])) < 0.05
     with pytest.raises(ValueError, match="same aspect ratio"):
         pred.predict(s["rig"], big[:, :200], None)
+
+
+LOW_MEMORY_RUN = """
+import sys
+import numpy as np
+from gijax.export.ort_session import make_session
+feed = dict(np.load(sys.argv[2]))
+sess = make_session(sys.argv[1], ["CPUExecutionProvider"], memory="low")
+np.save(sys.argv[3], sess.run(["inv_distance"], feed)[0])
+print("jax" in sys.modules)
+"""
+
+
+def test_low_memory_session_matches_jax_without_importing_it(setup, tmp_path):
+    """The 'low' profile (no arena, no constant folding, fixed mmap threshold) runs in a fresh
+    process that imports onnxruntime and not JAX, and gives JAX's numbers."""
+    import subprocess
+    import sys
+
+    from gijax.export.ort_session import session_options
+
+    s = setup
+    feed = tmp_path / "feed.npz"
+    np.savez(feed, images=np.asarray(s["images"], np.float32),
+             masks=np.asarray(s["masks"], np.float32))
+    got = tmp_path / "inv.npy"
+    proc = subprocess.run([sys.executable, "-c", LOW_MEMORY_RUN, str(s["baked"].path),
+                           str(feed), str(got)], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "False"
+    np.testing.assert_allclose(np.load(got)[0], s["ref"]["inv_distance"][0], atol=1e-4, rtol=0)
+    opts, disabled = session_options("low")
+    assert not opts.enable_cpu_mem_arena and not opts.enable_mem_pattern
+    assert disabled == ["ConstantFolding"]
+    opts, disabled = session_options("lean")
+    assert opts.enable_cpu_mem_arena and disabled == ["ConstantFolding"]
+    opts, disabled = session_options("default")
+    assert opts.enable_cpu_mem_arena and disabled == []
+    with pytest.raises(ValueError, match="memory profile must be one of.*found 'tiny'"):
+        session_options("tiny")
+
+
+def test_isolated_onnxruntime_child_reports_memory_without_jax(setup):
+    """gijax bench's onnxruntime child: a fresh process, no JAX, its peak resident set."""
+    from gijax.bench.isolated import run_child
+
+    path = str(setup["baked"].path)
+    row = run_child(["ort", path, "--memory", "low", "--reps", "1"])
+    assert row["memory"] == "low" and row["imported_jax"] is False
+    assert 0 < row["peak_gb_imports"] <= row["peak_gb_session"] <= row["peak_gb"] < 2.0
+    assert row["ort_s"] > 0
+    with pytest.raises(RuntimeError, match="exit status"):
+        run_child(["ort", path + ".missing", "--reps", "1"])

@@ -45,7 +45,7 @@ PACKAGE = ROOT / "gijax"
 
 LAYERS = (
     ("gijax",),
-    ("numerics",),
+    ("numerics", "host_memory"),
     ("geometry",),
     ("io",),
     ("candidates",),

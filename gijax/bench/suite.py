@@ -40,6 +40,7 @@ class SuiteSettings:
     scaling_preset: str
     scaling_cameras: tuple
     scaling_candidates: tuple
+    isolated_presets: tuple = ()
     reps: int = 5
     warmup: int = 1
     scaling_reps: int = 10
@@ -55,6 +56,7 @@ SUITES = {
         rtss_scale=0.125, rtss_match=128, rtss_pano=(40, 160), rtss_candidates=32,
         rtss_cameras=(3, 4), train_presets=("G16VV-cpu",), train_batch=2, train_steps=3,
         scaling_preset="G16VV-cpu", scaling_cameras=(3, 4, 5), scaling_candidates=(8, 16, 32),
+        isolated_presets=tuple(p + "-cpu" for p in PAPER_PRESETS) + ("G16VV-cpu-plain",),
         reps=5, warmup=1, matmul_n=1024, bandwidth_mib=128),
     "full": SuiteSettings(
         name="full", presets=PAPER_PRESETS, sweep_preset="G16VV",
@@ -63,12 +65,16 @@ SUITES = {
         rtss_scale=1.0, rtss_match=512, rtss_pano=(160, 640), rtss_candidates=32,
         rtss_cameras=(3, 4, 5), train_presets=("G16VV",), train_batch=2, train_steps=5,
         scaling_preset="G16VV", scaling_cameras=(3, 4, 5), scaling_candidates=(8, 16, 32),
+        isolated_presets=PAPER_PRESETS + ("G16VV-plain",),
         reps=10, warmup=2, scaling_reps=20, matmul_n=4096, bandwidth_mib=1024),
 }
 # On a GPU the calibration needs bigger problems to reach the device's limits.
 GPU_CALIBRATION = {"matmul_n": 8192, "bandwidth_mib": 2048}
 
-CASE_ORDER = ("forward", "stages", "onnx", "sweep", "candidates", "rtss", "train", "scaling")
+CASE_ORDER = ("forward", "stages", "onnx", "sweep", "candidates", "rtss", "train", "scaling",
+              "isolated")
+# 'isolated' spawns fresh processes per preset and exports every network: it runs when asked.
+DEFAULT_CASES = CASE_ORDER[:-1]
 
 
 def select_device(kind: str):
@@ -109,7 +115,7 @@ def run_suite(suite: str = "quick", device: str = "cpu", out_dir: str | Path = "
     """Run the calibration and the chosen cases (default all), write ``bench.json``,
     ``bench.md`` and (with the scaling case) ``scaling.png`` to ``out_dir``; returns the
     result dict."""
-    chosen = list(CASE_ORDER) if not cases else list(cases)
+    chosen = list(DEFAULT_CASES) if not cases else list(cases)
     unknown = [c for c in chosen if c not in C.CASES]
     if unknown:
         raise ValueError(f"unknown case(s) {unknown}; choose from {list(CASE_ORDER)}")
@@ -163,6 +169,16 @@ EFF_COLS = [("GFLOP", "gflop", ".3g"), ("GFLOP/s", "gflops_per_s", ".1f"),
                                                      lambda v: f"{1e3 * v:.2f}")]
 TIME_COLS = [("median ms", "ms_median", ".1f"), ("IQR ms", "ms_iqr", ".1f"),
              ("min ms", "ms_min", ".1f")]
+
+
+ISOLATED_COLS = [("preset", "preset"), ("same network as", "same_as"), *[(f"{k} s", f"{k}_s", ".3f") for k in (
+    "features", "sweep", "cost_volume", "unet", "regress")], ("sum s", "sum_s", ".3f"),
+    ("whole s", "whole_s", ".3f"), ("whole / sum", "whole_over_sum", ".2f"),
+    ("JAX peak GB", "peak_gb", ".2f"), ("PyTorch s", "pytorch_s", ".1f"),
+    ("PyTorch GB", "pytorch_peak_gb", ".2f"), ("ONNX MB", "onnx_mb", ".0f"),
+    ("ORT s", "ort_default_s", ".2f"), ("ORT GB", "ort_default_peak_gb", ".2f"),
+    ("ORT lean s", "ort_lean_s", ".2f"), ("ORT lean GB", "ort_lean_peak_gb", ".2f"),
+    ("ORT low s", "ort_low_s", ".2f"), ("ORT low GB", "ort_low_peak_gb", ".2f")]
 
 
 def case_tables(result: dict) -> list[tuple[str, list, list]]:
@@ -228,6 +244,11 @@ def case_tables(result: dict) -> list[tuple[str, list, list]]:
                     [("preset", "preset"), ("batch", "batch"), *TIME_COLS,
                      ("samples/s", "samples_per_s", ".2f"), ("compile s", "compile_s", ".1f"),
                      *EFF_COLS, ("XLA peak MiB", "xla_peak_mib", ".0f"), *_mem_col(rows)]))
+    if "isolated" in cases:
+        rows = cases["isolated"]["rows"]
+        out.append(("Each preset in fresh processes: JAX whole forward and stages (surrogates "
+                    "in), onnxruntime on the exported file (raw fisheyes in, a process without "
+                    "JAX); peak resident set per process", rows, ISOLATED_COLS))
     if "scaling" in cases:
         rows = sorted(cases["scaling"]["rows"], key=lambda r: (r["cameras"], r["candidates"]))
         out.append(("Scaling with cameras and candidates (polygon rigs, 1 m sides, alternating)",
@@ -308,8 +329,10 @@ def add_arguments(parser) -> None:
                              "(default: bench-out)")
     parser.add_argument("--cases", nargs="+", choices=CASE_ORDER, default=None,
                         metavar="CASE",
-                        help=f"run only these cases (default: all of {', '.join(CASE_ORDER)}); "
-                             "the calibration always runs")
+                        help=f"run only these cases (default: {', '.join(DEFAULT_CASES)}; "
+                             "'isolated' measures every preset of the suite in fresh processes, "
+                             "JAX and onnxruntime, with each process's peak memory, and runs "
+                             "only when named); the calibration always runs")
     parser.add_argument("--reps", type=int, default=None,
                         help="timed repetitions per measurement (default: the suite's)")
     parser.add_argument("--warmup", type=int, default=None,

@@ -15,39 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from gijax.export.graph import intrinsics_layout, rig_arrays
+from gijax.export.ort_session import (MEMORY_PROFILES, available_providers,  # noqa: F401
+                                      default_providers, make_session)
 from gijax.export.onnx_export import (IMAGES, MASKS, OUTPUTS, RIG_INPUTS, export_panorama,
                                       read_metadata)
-
-
-def available_providers() -> list[str]:
-    import onnxruntime as ort
-
-    return list(ort.get_available_providers())
-
-
-def default_providers() -> list[str]:
-    """CUDA first when this onnxruntime has it, then the CPU."""
-    have = available_providers()
-    return [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in have]
-
-
-def make_session(path: str, providers=None, threads: int | None = None):
-    """An ``onnxruntime.InferenceSession`` for ``path`` with full graph optimisation."""
-    import onnxruntime as ort
-
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"{path}: no such ONNX file")
-    opts = ort.SessionOptions()
-    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    opts.log_severity_level = 3  # errors only: shape-merge notes are not actionable
-    if threads:
-        opts.intra_op_num_threads = int(threads)
-    providers = default_providers() if providers is None else list(providers)
-    unknown = [p for p in providers if p not in available_providers()]
-    if unknown:
-        raise ValueError(f"onnxruntime providers {unknown} are not available here; available: "
-                         f"{available_providers()}")
-    return ort.InferenceSession(str(path), sess_options=opts, providers=providers)
 
 
 def rig_feed(run_rig, candidates) -> dict:
@@ -167,12 +138,15 @@ class OnnxPredictor:
       path: the ``.onnx`` file.
       providers: onnxruntime execution providers; default CUDA where available, else CPU.
       threads: intra-op threads (default: onnxruntime's choice).
+      memory: ``'default'``, ``'lean'`` or ``'low'`` (:mod:`gijax.export.ort_session`: less
+        resident memory for more time).
     """
 
-    def __init__(self, path: str | os.PathLike, providers=None, threads: int | None = None):
+    def __init__(self, path: str | os.PathLike, providers=None, threads: int | None = None,
+                 memory: str = "default"):
         self.info = ExportInfo(path)
         self.path = self.info.path
-        self.session = make_session(self.path, providers, threads)
+        self.session = make_session(self.path, providers, threads, memory)
         first = self.session.get_inputs()[0]
         self.batch = first.shape[0] if isinstance(first.shape[0], int) else None
 
@@ -206,4 +180,5 @@ class OnnxPredictor:
         return dict(zip(names, self.session.run(names, feed)))
 
 
-__all__ = ["OnnxPredictor", "ExportInfo", "make_session", "rig_feed", "default_providers", "RIG_INPUTS"]
+__all__ = ["OnnxPredictor", "ExportInfo", "make_session", "rig_feed", "default_providers",
+           "available_providers", "MEMORY_PROFILES", "RIG_INPUTS"]

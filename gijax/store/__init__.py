@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 
+from gijax.host_memory import release_freed_memory
 from gijax.store.assets import bundled_names, describe_bundled, resolve_model_path
 from gijax.store.bundles import is_bundle, load_bundle
 from gijax.store.configs import read_preset, read_run_config
@@ -25,11 +26,12 @@ def load_model(spec: str | os.PathLike, which: str = "best"):
     """``(model, model_config, candidates)`` from what ``--ckpt`` names: a training run folder
     (``which`` checkpoint: 'best' validated, else newest; or 'latest'), an inference bundle, or
     the name of a bundled model. The model is in eval mode; candidates are its training list,
-    (D,) float64 metres."""
+    (D,) float64 metres. Memory freed while building and restoring goes back to the system
+    (:func:`gijax.host_memory.release_freed_memory`)."""
     path = resolve_model_path(spec)
-    if is_bundle(path):
-        return load_bundle(path)
-    return load_for_inference(path, which)
+    loaded = load_bundle(path) if is_bundle(path) else load_for_inference(path, which)
+    release_freed_memory()
+    return loaded
 
 
 def model_or_untrained(ckpt: str | os.PathLike | None, preset: str | None, seed: int = 0):
@@ -43,7 +45,9 @@ def model_or_untrained(ckpt: str | os.PathLike | None, preset: str | None, seed:
     from gijax.model import create_model
 
     config = read_preset(preset)
-    return (create_model(config, seed=seed), config, None,
+    model = create_model(config, seed=seed)
+    release_freed_memory()
+    return (model, config, None,
             f"UNTRAINED {config.name} (random weights, seed {seed})")
 
 

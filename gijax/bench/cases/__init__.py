@@ -12,7 +12,8 @@ FLOPs and bytes (XLA cost analysis) and its memory (XLA memory analysis).
 * :mod:`~gijax.bench.cases.onnx_runtime`: JAX vs onnxruntime on the exported graph;
 * :mod:`~gijax.bench.cases.candidate_solver`: the rig-aware candidate solver;
 * :mod:`~gijax.bench.cases.baseline`: the classical RTSS baseline;
-* :mod:`~gijax.bench.cases.training`: one training step.
+* :mod:`~gijax.bench.cases.training`: one training step;
+* :mod:`~gijax.bench.cases.isolated`: every preset in fresh processes (:mod:`gijax.bench.isolated`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from gijax.bench.cases.baseline import rtss
 from gijax.bench.cases.calibration import calibrate
 from gijax.bench.cases.candidate_solver import candidates
 from gijax.bench.cases.context import Context
+from gijax.bench.cases.isolated import isolated
 from gijax.bench.cases.network import forward, scaling, stages, sweep
 from gijax.bench.cases.onnx_runtime import onnx_vs_jax
 from gijax.bench.cases.training import train_step
@@ -34,6 +36,7 @@ CASES = {
     "rtss": rtss,
     "train": train_step,
     "scaling": scaling,
+    "isolated": isolated,
 }
 
 __all__ = ["CASES", "Context", "calibrate"]
