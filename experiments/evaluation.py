@@ -186,7 +186,8 @@ def evaluate(reader, predictor: Predictor) -> tuple[dict, np.ndarray]:
     same names with a ``_gijax`` suffix follow gijax's (see the module docstring).
     ``time_ms`` is the median wall time of one call (the predictor is compiled beforehand, so
     no call includes compilation); ``coverage`` is the share of labelled pixels with an
-    estimate.
+    estimate; ``mae_per_sample`` lists each sample's paper MAE (None for a sample without a
+    pixel in range), whose mean over the non-None entries is ``mae``.
     """
     import jax.numpy as jnp
 
@@ -219,11 +220,18 @@ def evaluate(reader, predictor: Predictor) -> tuple[dict, np.ndarray]:
             first = np.where(est, inv, np.nan)
     if not times:
         raise ValueError(f"{reader.root} has no samples to evaluate")
-    joined = {m: summarize({k: np.concatenate([p[k] for p in ps]) for k in ps[0]}, m)
-              for m, ps in parts.items()}
+    per_sample = {m: {k: np.concatenate([p[k] for p in ps]) for k in ps[0]}
+                  for m, ps in parts.items()}
+    joined = {m: summarize(v, m) for m, v in per_sample.items()}
     metrics = {**joined["paper"], "metric_set": "paper",
                **{f"{k}_gijax": v for k, v in joined["gijax"].items()
                   if k not in ("samples",)}}
+    # The paper's MAE of each sample (None without a pixel in range): paired comparisons of
+    # two methods on the same scenes (experiments.claims.paired_difference).
+    paper = per_sample["paper"]
+    metrics["mae_per_sample"] = [float(m) if c > 0 else None for m, c in
+                                 zip(np.asarray(paper["mae"]).reshape(-1),
+                                     np.asarray(paper["count"]).reshape(-1))]
     metrics["coverage"] = covered / max(labelled, 1.0)
     metrics["time_ms"] = 1000.0 * float(np.median(times))
     metrics["time_ms_mean"] = 1000.0 * float(np.mean(times))
@@ -245,7 +253,9 @@ def cached_evaluation(work: Path, key_fields: dict, make_predictor: Callable, da
     path = work / "evals" / f"{key}.json"
     pred_path = work / "evals" / f"{key}.first.npy"
     stored = read_json(path)
-    if stored and stored.get("key") == key_fields and pred_path.is_file():
+    # Results stored before per-sample MAEs were kept are computed again (same figures).
+    if (stored and stored.get("key") == key_fields and pred_path.is_file()
+            and "mae_per_sample" in stored):
         return {**stored, "first_prediction": np.load(pred_path), "reused": True}
     reader = DatasetReader(data)
     t0 = time.perf_counter()

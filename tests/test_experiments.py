@@ -378,6 +378,7 @@ def test_evaluate_matches_numpy_reference():
     assert metrics["metric_set"] == "paper"
     assert metrics["mae"] == pytest.approx(np.mean(paper_mae), rel=1e-5)
     assert metrics["rmse"] == pytest.approx(np.mean(paper_rmse), rel=1e-5)
+    np.testing.assert_allclose(metrics["mae_per_sample"], paper_mae, rtol=1e-5)
     # gijax's beside them: clamped labels pooled over all estimated pixels.
     assert metrics["mae_gijax"] == pytest.approx(np.abs(errs).mean(), rel=1e-5)
     assert metrics["rmse_gijax"] == pytest.approx(np.sqrt((errs ** 2).mean()), rel=1e-5)
@@ -385,6 +386,27 @@ def test_evaluate_matches_numpy_reference():
     assert metrics["coverage"] == pytest.approx(est_count / lab_count)
     assert metrics["samples"] == 2
     np.testing.assert_array_equal(np.isnan(first), ~ests[0])
+
+
+def test_paired_difference_against_a_closed_case():
+    """Scene-by-scene differences: a constant shift has a zero-width CI at the shift; noise
+    around zero gives a CI that spans it; scenes without a value drop out in pairs."""
+    base = np.linspace(0.05, 0.15, 40)
+    p = claims.paired_difference(list(base - 0.01), list(base))
+    assert p["mean"] == pytest.approx(-0.01) and p["lower"] == p["scenes"] == 40
+    assert p["ci95"] == pytest.approx([-0.01, -0.01])
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0.0, 0.01, 400)
+    q = claims.paired_difference(list(base.repeat(10) + noise), list(base.repeat(10)))
+    assert q["ci95"][0] < 0 < q["ci95"][1]
+    # The bootstrap CI of a mean: about +-1.96 sd / sqrt(n).
+    assert q["ci95"][1] - q["ci95"][0] == pytest.approx(2 * 1.96 * noise.std() / 20, rel=0.15)
+    r = claims.paired_difference([0.1, None, 0.3, 0.2], [0.2, 0.1, None, 0.1])
+    assert r["scenes"] == 2 and r["mean"] == pytest.approx(0.0) and r["lower"] == 1
+    assert claims.paired_difference([0.1], [0.2]) is None
+    assert claims.paired_difference([0.1, 0.2], [0.2]) is None
+    assert claims.paired_difference(None, [0.2]) is None
+    assert "95 % CI -0.0100..-0.0100" in claims.paired_text(p) and "40/40" in claims.paired_text(p)
 
 
 def _rows(**mae):
@@ -483,6 +505,19 @@ def test_learned_list_claims_need_every_new_rig():
     assert learned_candidates.claim_learning_costs_nothing(same)["status"] == "PASS"
     same[1]["mae"] = 0.031
     assert learned_candidates.claim_learning_costs_nothing(same)["status"] == "FAIL"
+    # With per-scene MAEs the verdict says where the gain stands out from the scene spread:
+    # a uniform 10 % gain on two rigs, a gain on average only (half the scenes worse) on one.
+    rows = _list_rows(**spacing, **better)
+    scenes = np.linspace(0.5, 1.5, 20)
+    for r in rows:
+        r["mae_per_sample"] = list(r["mae"] * scenes)
+        if (r["layout"], r["list"]) == ("ring5-0.5m", "supervised"):
+            r["mae_per_sample"] = list(r["mae"] * scenes + 0.02 * (-1) ** np.arange(20))
+    c = learned_candidates.claim_beats_paper_list(rows, "supervised")
+    assert c["status"] == "PASS"
+    assert "lower on 20/20" in c["detail"] and "lower on 10/20" in c["detail"]
+    text = learned_candidates.verdict([c], scales.SCALES["cpu"])
+    assert "below 0) on `paper-test2`, `paper-test3`; on `ring5-0.5m` it does not." in text
 
 
 def test_concat_models_cannot_take_four_cameras():
