@@ -406,6 +406,39 @@ def test_spherical_gather_equals_plain_conv_on_an_integer_grid():
     np.testing.assert_allclose(got, np.asarray(ref), rtol=1e-4, atol=1e-4)
 
 
+def test_spherical_conv_mixes_tap_by_tap_at_inference():
+    """Eval mode mixes the taps one at a time (no (B, H, W, 9, C) stack): on an integer grid
+    that is the plain 3x3 conv too, and the module's eval output equals its stacked form."""
+    from flax import nnx
+
+    from gijax.nn.layers import leaky_relu
+    from gijax.nn.spherical import SphericalConv, _cached_tables, mix_taps_one_by_one
+
+    rng = np.random.default_rng(9)
+    h, w, c, co = 5, 12, 3, 4
+    x = rng.normal(size=(2, h, w, c)).astype(np.float32)
+    kernel = rng.normal(size=(3, 3, c, co)).astype(np.float32)
+    grid = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(9, 2)
+    index, weight = sampling_tables(np.broadcast_to(grid, (h, 9, 2)).astype(float), w)
+    got = np.asarray(mix_taps_one_by_one(jnp.asarray(x), jnp.asarray(index),
+                                         jnp.asarray(weight), kernel.reshape(9 * c, co)))
+    padded = np.concatenate([x[:, :1], x, np.zeros_like(x[:, :1])], axis=1)
+    padded = np.concatenate([padded[:, :, -1:], padded, padded[:, :, :1]], axis=2)
+    ref = jax.lax.conv_general_dilated(jnp.asarray(padded), jnp.asarray(kernel), (1, 1),
+                                       "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    np.testing.assert_allclose(got, np.asarray(ref), rtol=1e-4, atol=1e-4)
+
+    conv = SphericalConv(c, co, h, w, nnx.Rngs(0), taps="release")
+    conv.bn.mean[...] = jnp.asarray(rng.normal(size=co), jnp.float32)
+    conv.bn.var[...] = jnp.asarray(rng.uniform(0.5, 2.0, size=co), jnp.float32)
+    conv.eval()
+    idx, wgt = _cached_tables("release", h, w, -math.pi / 2, 0.0)
+    taps = gather_taps(jnp.asarray(x), jnp.asarray(idx), jnp.asarray(wgt))
+    stacked = leaky_relu(conv.bn(conv.mix(taps.reshape(2, h, w, 9 * c))))
+    np.testing.assert_allclose(np.asarray(conv(jnp.asarray(x))), np.asarray(stacked),
+                               rtol=1e-5, atol=1e-5)
+
+
 def _np_zero_padded_bilinear(img, row, col):
     """Reference bilinear sample of (H, W, C) at one (row, col), neighbours outside = 0."""
     h, w = img.shape[:2]

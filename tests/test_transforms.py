@@ -1256,6 +1256,15 @@ def _gather_taps(seed):
     return jnp.asarray(x, F64), _taps_tables()[1]
 
 
+@case(spherical.mix_taps_one_by_one,
+      call=lambda x, w, k: spherical.mix_taps_one_by_one(x, _taps_tables()[0], w, k),
+      diff=(0, 1, 2))
+def _mix_taps_one_by_one(seed):
+    rng = np.random.default_rng(seed)
+    x, kernel = rng.normal(size=(1, 4, 8, 2)), rng.normal(size=(9 * 2, 3))
+    return jnp.asarray(x, F64), _taps_tables()[1], jnp.asarray(kernel, F64)
+
+
 @case(upsample.upsample2_axis, call=lambda x: upsample.upsample2_axis(x, 1), diff=(0,))
 def _upsample2_axis(seed):
     return (jnp.asarray(np.random.default_rng(seed).normal(size=(1, 3, 4)), F64),)

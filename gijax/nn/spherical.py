@@ -142,6 +142,31 @@ def gather_taps(x: Array, index: Array, weight: Array) -> Array:
     return out
 
 
+def mix_taps_one_by_one(x: Array, index: Array, weight: Array, kernel: Array) -> Array:
+    """``gather_taps`` then the (K C) -> C_out mix, one tap at a time: (B, H, W, C) ->
+    (B, H, W, C_out) with ``kernel`` (K C, C_out) tap-major.
+
+    The same sums in another order: no (B, H, W, K, C) stack is ever held, only one tap's
+    (B, H, W, C) samples. At the paper's size the stack of the four neighbours is about
+    0.1 GB per neighbour, which dominates onnxruntime's working set; in JAX this form is also
+    faster forward (CPU), but its backward is slower, so training keeps the stacked form.
+    """
+    b, h, w, c = x.shape
+    k = index.shape[-1]
+    flat = x.reshape(b, h * w, c)
+    per_tap = kernel.reshape(k, c, -1).astype(x.dtype)
+    out = None
+    for t in range(k):
+        samples = None
+        for n in range(4):
+            got = jnp.take(flat, index[n, ..., t].reshape(-1), axis=1).reshape(b, h, w, c)
+            term = got * weight[n, ..., t][None, ..., None].astype(x.dtype)
+            samples = term if samples is None else samples + term
+        mixed = samples @ per_tap[t]
+        out = mixed if out is None else out + mixed
+    return out
+
+
 def release_offsets(height: int, width: int, lat_min: float = -math.pi / 2,
                     lat_max: float = 0.0) -> np.ndarray:
     """(H, W, 9, 2) float64 offsets (dy, dx) in pixels, exactly as the release computes them.
@@ -248,6 +273,13 @@ class SphericalConv(nnx.Module):
         # The tables are compile-time constants (cached numpy), neither parameters nor state,
         # so checkpoints hold only the weights.
         index, weight = _cached_tables(self.taps, self.height, self.width, *self.lat_range)
-        taps = gather_taps(x, jnp.asarray(index), jnp.asarray(weight))
-        b, h, w, k, c = taps.shape
-        return leaky_relu(self.bn(self.mix(taps.reshape(b, h, w, k * c))))
+        index, weight = jnp.asarray(index), jnp.asarray(weight)
+        if self.bn.use_running_average:
+            # Inference (eval mode, also what is exported): tap by tap, the least memory and
+            # the faster forward. Training keeps the stacked form, whose backward is faster.
+            mixed = mix_taps_one_by_one(x, index, weight, self.mix.kernel[...])
+        else:
+            taps = gather_taps(x, index, weight)
+            b, h, w, k, c = taps.shape
+            mixed = self.mix(taps.reshape(b, h, w, k * c))
+        return leaky_relu(self.bn(mixed))
