@@ -83,14 +83,19 @@ def test_network_matches_release(name):
     grids = fixture_grids(meta, data)
     b, n = imgs.shape[:2]
 
-    feats = model.features(imgs.reshape(b * n, *imgs.shape[2:])).reshape(b, n, *meta["feature_hw"], -1)
+    # Compiled, not op by op: one program per stage compiles faster than the network's ops
+    # one at a time, and it is the form every user runs.
+    @nnx.jit
+    def stages(model, imgs, masks, grids):
+        feats = model.features(imgs.reshape(b * n, *imgs.shape[2:]))
+        feats = feats.reshape(b, n, *meta["feature_hw"], -1)
+        sampled, cam_valid = sweep(feats, masks, grids, config.sweep_boundary)
+        volume = model.cost_volume(sampled, cam_valid.astype(feats.dtype))
+        return feats, volume, forward_surrogates(model, imgs, masks, grids)
+
+    feats, volume, out = stages(model, imgs, masks, grids)
     assert rel_err(feats, data["features"].transpose(0, 1, 3, 4, 2)) < RTOL
-
-    sampled, cam_valid = sweep(feats, masks, grids, config.sweep_boundary)
-    volume = model.cost_volume(sampled, cam_valid.astype(feats.dtype))
     assert rel_err(volume, data["cost_volume"].transpose(0, 2, 3, 4, 1)) < RTOL
-
-    out = forward_surrogates(model, imgs, masks, grids)
     assert rel_err(out["logits"], data["costs"][:, 0]) < RTOL
     assert rel_err(out["prob"], data["prob"]) < RTOL
     assert rel_err(out["inv_distance"] * RELEASE_BF, data["inv_dist_bf"][:, 0]) < RTOL
