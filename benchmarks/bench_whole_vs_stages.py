@@ -12,56 +12,34 @@ regression. Batch 1, 3 cameras, eval mode, median of ``--reps`` after one warm-u
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
-import statistics
-import time
 from pathlib import Path
 
 import jax
 
 from gijax.bench.cases.programs import stage_programs
-from gijax.nn import get_preset
+from gijax.bench.isolated import STAGES, bench_config, stage_times
+from gijax.bench.timing import time_call
 
-# The issue's second network: G16VV's structure (variance, in16/f96) with plain features.
-STRUCTURES = {
-    "G16V-released": lambda: get_preset("G16V-released"),
-    "G16VV-plain": lambda: dataclasses.replace(get_preset("G16VV"), name="G16VV-plain",
-                                               features="plain"),
-    "G16VV": lambda: get_preset("G16VV"),
-}
+# G16VV-plain (G16VV's structure with plain features) is the network the authors' PyTorch
+# figures in benchmarks/RESULTS.md were taken on.
+STRUCTURES = ("G16V-released", "G16VV-plain", "G16VV")
 
 
-STAGE_KEYS = {"features": "features", "sweep": "sweep", "cost volume": "cost_volume",
-              "U-Net": "unet", "regression": "regress"}
-
-
-def _cpu(cfg):
-    cpu = get_preset((cfg.name if cfg.name != "G16VV-plain" else "G16VV") + "-cpu")
-    return dataclasses.replace(cpu, name=cfg.name + "-cpu", features=cfg.features)
-
-
-def timed(fn, args, reps: int) -> float:
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+def cpu_name(name: str) -> str:
+    """The CPU-size twin of a paper-size name (``G16VV-plain`` -> ``G16VV-cpu-plain``)."""
+    if name.endswith("-plain"):
+        return name[: -len("-plain")] + "-cpu-plain"
+    return name + "-cpu"
 
 
 def measure(cfg, reps: int) -> dict:
     state, (sur, masks), whole, stages = stage_programs(cfg)
+    whole_c = jax.jit(whole)
     row = {"preset": cfg.name, "surrogate": "x".join(map(str, cfg.surrogate_hw)),
-           "whole_s": timed(jax.jit(whole), (state, sur, masks), reps)}
-    x = (sur,)
-    for name, fn in stages:
-        jf = jax.jit(fn)
-        row[STAGE_KEYS[name] + "_s"] = timed(jf, (state, *x), reps)
-        out = jf(state, *x)
-        x = out if isinstance(out, tuple) else (out,)
-    row["sum_s"] = sum(row[k + "_s"] for k in STAGE_KEYS.values())
+           "whole_s": time_call(lambda: whole_c(state, sur, masks), warmup=1,
+                                reps=reps)[0].median}
+    row.update(stage_times(state, sur, stages, reps))
     row["whole_over_sum"] = row["whole_s"] / row["sum_s"]
     return row
 
@@ -70,17 +48,16 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sizes", nargs="+", choices=("cpu", "paper"), default=["cpu"])
-    p.add_argument("--presets", nargs="+", choices=list(STRUCTURES), default=list(STRUCTURES))
+    p.add_argument("--presets", nargs="+", choices=STRUCTURES, default=list(STRUCTURES))
     p.add_argument("--reps", type=int, default=3)
     p.add_argument("--out", default="benchmarks/out/whole_vs_stages.json")
     args = p.parse_args()
     rows = []
-    cols = ("features", "sweep", "cost_volume", "unet", "regress", "sum", "whole")
+    cols = (*STAGES, "sum", "whole")
     print(f"{'preset':<20}" + "".join(f"{c:>12}" for c in cols) + f"{'whole/sum':>11}")
     for size in args.sizes:
         for name in args.presets:
-            cfg = STRUCTURES[name]()
-            cfg = cfg if size == "paper" else _cpu(cfg)
+            cfg = bench_config(name if size == "paper" else cpu_name(name))
             row = measure(cfg, args.reps)
             rows.append(row)
             print(f"{row['preset']:<20}" + "".join(f"{row[c + '_s'] * 1e3:>10.0f}ms"

@@ -388,22 +388,29 @@ def test_tangent_offsets_equator_and_pole_closed_forms():
     np.testing.assert_allclose(off[0, 1, 0], 0.0, atol=1e-9)
 
 
-def test_spherical_gather_equals_plain_conv_on_an_integer_grid():
-    """With integer grid offsets the tap gather + (9 C) -> C_out mix is exactly a 3x3 conv with
-    wrapped columns, the first row repeated above and zeros below."""
+def _integer_grid_case():
+    """(x, 3x3 kernel, tap tables on the integer grid, the plain conv with wrapped columns, the
+    first row repeated above and zeros below): the spherical conv's oracle."""
     rng = np.random.default_rng(9)
     h, w, c, co = 5, 12, 3, 4
     x = rng.normal(size=(2, h, w, c)).astype(np.float32)
     kernel = rng.normal(size=(3, 3, c, co)).astype(np.float32)
     grid = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(9, 2)
     index, weight = sampling_tables(np.broadcast_to(grid, (h, 9, 2)).astype(float), w)
-    taps = gather_taps(jnp.asarray(x), jnp.asarray(index), jnp.asarray(weight))
-    got = np.asarray(taps.reshape(2, h, w, 9 * c) @ kernel.reshape(9 * c, co))
     padded = np.concatenate([x[:, :1], x, np.zeros_like(x[:, :1])], axis=1)
     padded = np.concatenate([padded[:, :, -1:], padded, padded[:, :, :1]], axis=2)
     ref = jax.lax.conv_general_dilated(jnp.asarray(padded), jnp.asarray(kernel), (1, 1),
                                        "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
-    np.testing.assert_allclose(got, np.asarray(ref), rtol=1e-4, atol=1e-4)
+    return x, kernel, index, weight, np.asarray(ref)
+
+
+def test_spherical_gather_equals_plain_conv_on_an_integer_grid():
+    """With integer grid offsets the tap gather + (9 C) -> C_out mix is exactly a 3x3 conv with
+    wrapped columns, the first row repeated above and zeros below."""
+    x, kernel, index, weight, ref = _integer_grid_case()
+    taps = gather_taps(jnp.asarray(x), jnp.asarray(index), jnp.asarray(weight))
+    got = np.asarray(taps.reshape(*x.shape[:3], -1) @ kernel.reshape(-1, kernel.shape[-1]))
+    np.testing.assert_allclose(got, ref, rtol=1e-4, atol=1e-4)
 
 
 def test_spherical_conv_mixes_tap_by_tap_at_inference():
@@ -414,19 +421,12 @@ def test_spherical_conv_mixes_tap_by_tap_at_inference():
     from gijax.nn.layers import leaky_relu
     from gijax.nn.spherical import SphericalConv, _cached_tables, mix_taps_one_by_one
 
-    rng = np.random.default_rng(9)
-    h, w, c, co = 5, 12, 3, 4
-    x = rng.normal(size=(2, h, w, c)).astype(np.float32)
-    kernel = rng.normal(size=(3, 3, c, co)).astype(np.float32)
-    grid = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(9, 2)
-    index, weight = sampling_tables(np.broadcast_to(grid, (h, 9, 2)).astype(float), w)
+    x, kernel, index, weight, ref = _integer_grid_case()
+    h, w, c, co = *x.shape[1:], kernel.shape[-1]
+    rng = np.random.default_rng(10)
     got = np.asarray(mix_taps_one_by_one(jnp.asarray(x), jnp.asarray(index),
                                          jnp.asarray(weight), kernel.reshape(9 * c, co)))
-    padded = np.concatenate([x[:, :1], x, np.zeros_like(x[:, :1])], axis=1)
-    padded = np.concatenate([padded[:, :, -1:], padded, padded[:, :, :1]], axis=2)
-    ref = jax.lax.conv_general_dilated(jnp.asarray(padded), jnp.asarray(kernel), (1, 1),
-                                       "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
-    np.testing.assert_allclose(got, np.asarray(ref), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(got, ref, rtol=1e-4, atol=1e-4)
 
     conv = SphericalConv(c, co, h, w, nnx.Rngs(0), taps="release")
     conv.bn.mean[...] = jnp.asarray(rng.normal(size=co), jnp.float32)

@@ -28,7 +28,6 @@ import dataclasses
 import json
 import os
 import resource
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -67,13 +66,25 @@ def peak_rss_gb() -> float:
 
 
 def _median_time(fn: Callable, reps: int) -> float:
-    fn()  # warm-up (and compile where it has not happened)
-    times = []
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    """Median seconds of ``fn()`` over ``reps`` runs after one warm-up (blocking on results)."""
+    from gijax.bench.timing import time_call
+
+    return time_call(fn, warmup=1, reps=reps)[0].median
+
+
+def stage_times(state, surrogates, stages, reps: int) -> dict:
+    """``<stage>_s`` for each stage of :func:`gijax.bench.cases.programs.stage_programs`, each
+    compiled alone and fed the previous stage's output, and their ``sum_s``."""
+    import jax
+
+    row, x = {}, (surrogates,)
+    for key, (_, fn) in zip(STAGES, stages):
+        compiled = jax.jit(fn).lower(state, *x).compile()
+        row[key + "_s"] = _median_time(lambda c=compiled, a=x: c(state, *a), reps)
+        out = compiled(state, *x)
+        x = out if isinstance(out, tuple) else (out,)
+    row["sum_s"] = sum(row[k + "_s"] for k in STAGES)
+    return row
 
 
 # ------------------------------------------------------------------------------- children
@@ -95,19 +106,10 @@ def jax_child(name: str, reps: int) -> dict:
     whole_c = jax.jit(whole).lower(state, sur, masks).compile()
     row["compile_s"] = time.perf_counter() - t0
     release_freed_memory()
-    row["whole_s"] = _median_time(lambda: jax.block_until_ready(whole_c(state, sur, masks)),
-                                  reps)
+    row["whole_s"] = _median_time(lambda: whole_c(state, sur, masks), reps)
     # The whole forward's peak: taken before any stage program exists.
     row["peak_gb"] = peak_rss_gb()
-    x = (sur,)
-    for key, (_, fn) in zip(STAGES, stages):
-        compiled = jax.jit(fn).lower(state, *x).compile()
-        args = x
-        row[key + "_s"] = _median_time(
-            lambda c=compiled, a=args: jax.block_until_ready(c(state, *a)), reps)
-        out = compiled(state, *x)
-        x = out if isinstance(out, tuple) else (out,)
-    row["sum_s"] = sum(row[k + "_s"] for k in STAGES)
+    row.update(stage_times(state, sur, stages, reps))
     row["whole_over_sum"] = row["whole_s"] / row["sum_s"]
     row["jax"] = jax.__version__
     return row

@@ -14,6 +14,7 @@ slow phases of a shared machine hit all contenders alike; ratios are taken per r
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from typing import Callable, Mapping, Sequence
 
@@ -22,6 +23,10 @@ import numpy as np
 
 def block(result):
     """Wait for every array in ``result`` (any pytree) to be computed; returns ``result``."""
+    if "jax" not in sys.modules:
+        # No JAX array can exist in a process that never imported JAX (an onnxruntime
+        # measurement must not import it just to find that out).
+        return result
     import jax
 
     for leaf in jax.tree_util.tree_leaves(result):
