@@ -59,9 +59,9 @@ def register(subparsers) -> None:
     p.add_argument("--onnx", metavar="FILE", help="exported model for --backend onnx")
     p.add_argument("--onnx-memory", choices=("default", "lean", "low"), default="default",
                    help="onnxruntime memory profile for --backend onnx: 'lean' skips constant "
-                        "folding (about 35%% less memory, 8%% more time at paper size), 'low' "
+                        "folding (about 40%% less memory, 12%% more time at paper size), 'low' "
                         "keeps the least resident memory (also no arena and glibc's mmap "
-                        "threshold fixed; about 3x less memory, 1.8x the time) (default: "
+                        "threshold fixed; about 4x less memory, 1.7x the time) (default: "
                         "'default')")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--ckpt", metavar="PATH|NAME", help=CKPT_HELP)

@@ -12,8 +12,8 @@ that imports onnxruntime and not JAX (``benchmarks/RESULTS.md`` has the full tab
 profile     s/forward  peak GB
 ==========  =========  ==========
 default     3.9        3.0
-lean        4.2        1.9
-low         7.1        0.99
+lean        4.3        1.7
+low         6.7        0.75
 ==========  =========  ==========
 
 * ``'default'``: onnxruntime's defaults (arena, memory patterns, every graph optimisation).
