@@ -68,7 +68,7 @@ def _jax_runner(model, rig, cand):
 
 
 def _ort_runner(path):
-    from gijax.export.ort_predict import make_session
+    from gijax.export.ort_session import make_session
 
     sess = make_session(path, ["CPUExecutionProvider"])
     return lambda images, masks: sess.run(["inv_distance"], {"images": images,

@@ -27,7 +27,6 @@ import argparse
 import dataclasses
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -53,16 +52,10 @@ def bench_config(name: str):
 
 
 def peak_rss_gb() -> float:
-    """This process's resident-set high-water mark, GB. Linux's ``VmHWM`` belongs to the
-    process image since its ``exec``; ``ru_maxrss`` would also count the parent's memory at
-    the fork that started this child."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024 / GB
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / GB
+    """This process's resident-set high-water mark, GB (:func:`gijax.bench.memory.host_peak_rss_mib`)."""
+    from gijax.bench.memory import MIB, host_peak_rss_mib
+
+    return host_peak_rss_mib() * MIB / GB
 
 
 def _median_time(fn: Callable, reps: int) -> float:

@@ -102,9 +102,20 @@ def compiled_memory(compiled) -> dict:
 
 
 def host_peak_rss_mib() -> float:
-    """The process's resident-set high-water mark since it started (``ru_maxrss``), MiB."""
+    """The process's resident-set high-water mark since it started, MiB.
+
+    Linux's ``VmHWM`` belongs to the process image since its ``exec``; ``ru_maxrss`` (the
+    fallback elsewhere) would also count the parent's memory at the fork that started a child.
+    """
     import resource
 
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 

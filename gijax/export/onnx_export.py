@@ -377,7 +377,8 @@ def validate_export(path: str | os.PathLike, model: OmniStereoNet, rig: Rig, can
     """
     import onnx
 
-    from gijax.export.ort_predict import make_session, rig_feed
+    from gijax.export.ort_predict import rig_feed
+    from gijax.export.ort_session import make_session
 
     onnx.checker.check_model(str(path), full_check=True)
     sess = make_session(str(path))

@@ -129,17 +129,22 @@ def sampling_tables(offsets: np.ndarray, width: int) -> tuple[np.ndarray, np.nda
     return index, weight
 
 
+def _four_neighbours(flat: Array, index: Array, weight: Array) -> Array:
+    """Sum over the four bilinear neighbours: ``flat`` (B, H W, C), ``index`` (4, *S) flat
+    indices, ``weight`` (4, *S') broadcastable to S -> (B, *S, C)."""
+    b, _, c = flat.shape
+    out = None
+    for n in range(4):
+        got = jnp.take(flat, index[n].reshape(-1), axis=1).reshape(b, *index.shape[1:], c)
+        term = got * weight[n][None, ..., None].astype(flat.dtype)
+        out = term if out is None else out + term
+    return out
+
+
 def gather_taps(x: Array, index: Array, weight: Array) -> Array:
     """Bilinear taps of ``x`` (B, H, W, C) from :func:`sampling_tables` -> (B, H, W, K, C)."""
     b, h, w, c = x.shape
-    k = index.shape[-1]
-    flat = x.reshape(b, h * w, c)
-    out = None
-    for n in range(4):
-        taps = jnp.take(flat, index[n].reshape(-1), axis=1).reshape(b, h, w, k, c)
-        term = taps * weight[n][None, ..., None].astype(x.dtype)
-        out = term if out is None else out + term
-    return out
+    return _four_neighbours(x.reshape(b, h * w, c), index, weight)
 
 
 def mix_taps_one_by_one(x: Array, index: Array, weight: Array, kernel: Array) -> Array:
@@ -157,12 +162,7 @@ def mix_taps_one_by_one(x: Array, index: Array, weight: Array, kernel: Array) ->
     per_tap = kernel.reshape(k, c, -1).astype(x.dtype)
     out = None
     for t in range(k):
-        samples = None
-        for n in range(4):
-            got = jnp.take(flat, index[n, ..., t].reshape(-1), axis=1).reshape(b, h, w, c)
-            term = got * weight[n, ..., t][None, ..., None].astype(x.dtype)
-            samples = term if samples is None else samples + term
-        mixed = samples @ per_tap[t]
+        mixed = _four_neighbours(flat, index[..., t], weight[..., t]) @ per_tap[t]
         out = mixed if out is None else out + mixed
     return out
 

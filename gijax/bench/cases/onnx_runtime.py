@@ -21,7 +21,7 @@ def onnx_vs_jax(ctx: Context) -> dict:
     """The exported graph in onnxruntime against the same function jitted in JAX (rig and
     grids baked in, raw fisheye images in), alternating runs, ratio per round."""
     from gijax.export.onnx_export import build_function, eval_view, export_onnx, model_rig
-    from gijax.export.ort_predict import default_providers, make_session
+    from gijax.export.ort_session import default_providers, make_session
     from gijax.model import create_model
 
     providers = (["CPUExecutionProvider"] if ctx.device.platform == "cpu"
