@@ -174,7 +174,9 @@ def _augment_camera(key, image, mask, centre, config: AugmentConfig):
             return x
         k_on, k_params = jax.random.split(keys[name])
         on = jax.random.uniform(k_on) < p
-        return jnp.where(on, fn(k_params, x), x)
+        # A cond, not a select: a stage not drawn is not computed (under vmap it becomes a
+        # select again, with the same values).
+        return jax.lax.cond(on, fn, lambda _, y: y, k_params, x)
 
     def vignette(k, x):
         strength = _uniform(k, config.vignetting_strength)
@@ -209,10 +211,15 @@ def _augment_camera(key, image, mask, centre, config: AugmentConfig):
     if config.p_body > 0:
         k_on, k_shape = jax.random.split(keys["body"])
         on = jax.random.uniform(k_on) < config.p_body
-        covered = body_occlusion(h, w, centre, body_outline(k_shape, config.body)) * on
-        # Masks only lose pixels; the covered pixels are zeroed like any invalid pixel.
-        mask = mask * (1.0 - covered).astype(mask.dtype)
-        x = x * (1.0 - covered)[..., None].astype(x.dtype)
+
+        def occlude(k, x_m):
+            x, m = x_m
+            covered = body_occlusion(h, w, centre, body_outline(k, config.body))
+            # Masks only lose pixels; the covered pixels are zeroed like any invalid pixel.
+            return (x * (1.0 - covered)[..., None].astype(x.dtype),
+                    m * (1.0 - covered).astype(m.dtype))
+
+        x, mask = jax.lax.cond(on, occlude, lambda _, x_m: x_m, k_shape, (x, mask))
     return x, mask
 
 
@@ -233,6 +240,9 @@ def augment_sample(key: jax.Array, images: jax.Array, masks: jax.Array,
         return images, masks
     if centres is None:
         centres = jnp.broadcast_to(jnp.array([(w - 1) / 2.0, (h - 1) / 2.0], jnp.float32), (n, 2))
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(n))
-    one = lambda k, x, m, c: _augment_camera(k, x, m, c, config)  # noqa: E731
-    return jax.vmap(one)(keys, images, masks, jnp.asarray(centres, jnp.float32))
+    centres = jnp.asarray(centres, jnp.float32)
+    # A loop over the cameras rather than a vmap, so that each camera's stages stay conds
+    # (computed only when drawn); the camera count is small and static.
+    outs = [_augment_camera(jax.random.fold_in(key, i), images[i], masks[i], centres[i], config)
+            for i in range(n)]
+    return jnp.stack([o[0] for o in outs]), jnp.stack([o[1] for o in outs])
