@@ -439,6 +439,39 @@ def test_spherical_conv_mixes_tap_by_tap_at_inference():
                                rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.parametrize("taps", ["release", "tangent"])
+def test_spherical_training_backward_is_the_gathers_transpose(taps):
+    """Training mode's gather has a hand-written backward (a gather through
+    ``transposed_tables``). Oracles: the dense sampling matrix built from the tables with
+    ``np.add.at`` (its transpose), and autodiff of the plain :func:`gather_taps`."""
+    from gijax.nn.spherical import _cached_tables, _fixed_tap_gather, transposed_tables
+
+    h, w, c = 5, 12, 3
+    index, weight = _cached_tables(taps, h, w, -math.pi / 2, 0.0)
+    t_index, t_weight = transposed_tables(index, weight, h * w)
+    positions = index.shape[1] * index.shape[2] * index.shape[3]
+    dense = np.zeros((positions, h * w))
+    full = np.broadcast_to(weight, index.shape).reshape(4, -1)
+    np.add.at(dense, (np.arange(positions)[None].repeat(4, 0), index.reshape(4, -1)), full)
+    back = np.zeros((h * w, positions))
+    np.add.at(back, (np.arange(h * w)[:, None].repeat(t_index.shape[1], 1), t_index), t_weight)
+    np.testing.assert_allclose(back, dense.T, atol=1e-7)
+
+    rng = np.random.default_rng(11)
+    x = jnp.asarray(rng.normal(size=(2, h, w, c)), jnp.float32)
+    ct = jnp.asarray(rng.normal(size=(2, h, w, 9, c)), jnp.float32)
+    gather = _fixed_tap_gather(taps, h, w, -math.pi / 2, 0.0)
+    out, vjp = jax.vjp(gather, x)
+    ref_out, ref_vjp = jax.vjp(
+        lambda v: gather_taps(v, jnp.asarray(index), jnp.asarray(weight)), x)
+    np.testing.assert_allclose(np.asarray(out), np.asarray(ref_out), rtol=0, atol=0)
+    np.testing.assert_allclose(np.asarray(vjp(ct)[0]), np.asarray(ref_vjp(ct)[0]),
+                               rtol=1e-5, atol=1e-5)
+    expected = (dense.T @ np.asarray(ct, np.float64).reshape(2, positions, c))
+    np.testing.assert_allclose(np.asarray(jax.jit(lambda g: vjp(g)[0])(ct)),
+                               expected.reshape(2, h, w, c), rtol=1e-5, atol=1e-5)
+
+
 def _np_zero_padded_bilinear(img, row, col):
     """Reference bilinear sample of (H, W, C) at one (row, col), neighbours outside = 0."""
     h, w = img.shape[:2]

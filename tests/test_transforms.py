@@ -171,6 +171,7 @@ NOT_TRACED = {
     "gijax.nn.spherical.release_positions": "NumPy constant of static offsets",
     "gijax.nn.spherical.sampling_tables": "NumPy constant of static offsets",
     "gijax.nn.spherical.zero_padded_tables": "NumPy constant of static positions",
+    "gijax.nn.spherical.transposed_tables": "NumPy constant of static tables",
 }
 
 

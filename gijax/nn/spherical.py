@@ -244,6 +244,66 @@ def _cached_tables(taps: str, height: int, width: int, lat_min: float, lat_max: 
     return sampling_tables(tangent_offsets(height, width, lat_min, lat_max), width)
 
 
+def transposed_tables(index: np.ndarray, weight: np.ndarray,
+                      size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The transpose of a bilinear gather, as another gather.
+
+    ``index`` (4, *S) flat source indices and ``weight`` (4, *S') broadcastable to S, as
+    :func:`sampling_tables` or :func:`zero_padded_tables` give them, describe
+    ``out[s] = sum_n weight[n, s] src[index[n, s]]`` over the flattened positions s of S.
+    Returns ``t_index`` (size, M) int32 positions s and ``t_weight`` (size, M) float32 with
+    ``src_grad[p] = sum_m t_weight[p, m] out_grad[t_index[p, m]]``, M the most reads of any
+    source pixel; unused slots have weight 0. Entries of weight 0 are dropped.
+    """
+    idx = np.asarray(index).reshape(4, -1)
+    w = np.broadcast_to(np.asarray(weight), np.shape(index)).reshape(4, -1)
+    pos = np.broadcast_to(np.arange(idx.shape[1]), idx.shape)
+    keep = w != 0
+    src, dst, wt = idx[keep], pos[keep], w[keep]
+    order = np.argsort(src, kind="stable")
+    src, dst, wt = src[order], dst[order], wt[order]
+    counts = np.bincount(src, minlength=size)
+    slots = max(int(counts.max(initial=0)), 1)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(len(src)) - starts[src]
+    t_index = np.zeros((size, slots), np.int32)
+    t_weight = np.zeros((size, slots), np.float32)
+    t_index[src, slot] = dst
+    t_weight[src, slot] = wt
+    return t_index, t_weight
+
+
+@functools.lru_cache(maxsize=16)
+def _fixed_tap_gather(taps: str, height: int, width: int, lat_min: float, lat_max: float):
+    """:func:`gather_taps` on the cached tables, with a backward pass that gathers through
+    :func:`transposed_tables` instead of scatter-adding (the autodiff transpose of a gather):
+    on a CPU the scatter-add was five times the cost of this, and most of a training step's
+    spherical conv."""
+    index, weight = _cached_tables(taps, height, width, lat_min, lat_max)
+    t_index, t_weight = transposed_tables(index, weight, height * width)
+
+    @jax.custom_vjp
+    def gather(x):
+        return gather_taps(x, jnp.asarray(index), jnp.asarray(weight))
+
+    def forward(x):
+        return gather(x), None
+
+    def backward(_, grad):
+        b, h, w, k, c = grad.shape
+        flat = grad.reshape(b, h * w * k, c)
+        out = None
+        # One slot at a time: a single gather of every slot is as slow as the scatter-add.
+        for m in range(t_index.shape[1]):
+            term = (jnp.take(flat, jnp.asarray(t_index[:, m]), axis=1)
+                    * jnp.asarray(t_weight[:, m], grad.dtype)[None, :, None])
+            out = term if out is None else out + term
+        return (out.reshape(b, h, w, c),)
+
+    gather.defvjp(forward, backward)
+    return gather
+
+
 class SphericalConv(nnx.Module):
     """3x3 spherical conv (C_in -> C_out, no bias) + BatchNorm + LeakyReLU on a fixed map size.
 
@@ -272,14 +332,15 @@ class SphericalConv(nnx.Module):
             )
         # The tables are compile-time constants (cached numpy), neither parameters nor state,
         # so checkpoints hold only the weights.
-        index, weight = _cached_tables(self.taps, self.height, self.width, *self.lat_range)
-        index, weight = jnp.asarray(index), jnp.asarray(weight)
+        tables = (self.taps, self.height, self.width, *self.lat_range)
         if self.bn.use_running_average:
             # Inference (eval mode, also what is exported): tap by tap, the least memory and
             # the faster forward. Training keeps the stacked form, whose backward is faster.
-            mixed = mix_taps_one_by_one(x, index, weight, self.mix.kernel[...])
+            index, weight = _cached_tables(*tables)
+            mixed = mix_taps_one_by_one(x, jnp.asarray(index), jnp.asarray(weight),
+                                        self.mix.kernel[...])
         else:
-            taps = gather_taps(x, index, weight)
+            taps = _fixed_tap_gather(*tables)(x)
             b, h, w, k, c = taps.shape
             mixed = self.mix(taps.reshape(b, h, w, k * c))
         return leaky_relu(self.bn(mixed))
