@@ -339,13 +339,18 @@ class Trainer:
 
             bar = tqdm(total=total, initial=step, unit="step", dynamic_ncols=True)
         self._t_last, n_last = time.perf_counter(), 0
+        # Host seconds spent waiting for the loader since the last record: a loader that keeps
+        # up shows ~0; anything else is time the step stood still.
+        self._waited = 0.0
         # The loss of a step is read once the next step is dispatched, so that the device
         # computes while the host places the next batch; it is read at once before a
         # checkpoint or a validation (a non-finite loss is never saved) and at the end.
         pending = None
         try:
             while step < total:
+                t_wait = time.perf_counter()
                 local = next(stream)
+                self._waited += time.perf_counter() - t_wait
                 rig = self.rigs[local.get(RIG_KEY, 0)]
                 if cfg.calibration_error_deg:
                     rig = self.calibrated_rig(rig, step)
@@ -397,10 +402,13 @@ class Trainer:
         if not math.isfinite(loss):
             raise FloatingPointError(f"training loss became {loss} at step {step}")
         now = time.perf_counter()
-        rate = samples / max(now - self._t_last, 1e-9)
+        elapsed = max(now - self._t_last, 1e-9)
+        rate = samples / elapsed
+        waited, self._waited = self._waited, 0.0
         self._t_last = now
         self._log({"step": step, "loss": loss, "grad_norm": float(out["grad_norm"]),
-                   "lr": float(self.lr_fn(step - 1)), "samples_per_s": rate})
+                   "lr": float(self.lr_fn(step - 1)), "samples_per_s": rate,
+                   "data_wait_fraction": min(waited / elapsed, 1.0)})
         if bar is not None:
             bar.set_postfix(loss=f"{loss:.4f}", samples_s=f"{rate:.2f}")
 
