@@ -176,6 +176,7 @@ def train_run(run_dir: Path, command: str, config, data, val: Optional[Path], pr
     """Train ``config`` on ``data`` into ``run_dir`` (resuming after its newest checkpoint), or
     reuse the finished run when its done-record holds the same ``command`` and step count.
     Returns the done-record: ``record`` plus the command, timing and last validation."""
+    from gijax.bench.machine import invocation
     from gijax.train.entry import train
 
     done_file = run_dir.with_name(run_dir.name + ".done.json")
@@ -188,7 +189,7 @@ def train_run(run_dir: Path, command: str, config, data, val: Optional[Path], pr
         (" with the list learned" if config.learn_candidates else "") +
         (f" (resuming after step {start})" if start else "") + f" -> {run_dir}")
     t0 = time.perf_counter()
-    train(config, data, run_dir, val=val, progress=progress)
+    train(config, data, run_dir, val=val, progress=progress, invocation=invocation(command))
     seconds = time.perf_counter() - t0
     out = {**record, "run": str(run_dir), "command": command, "steps": config.steps,
            "resumed_from_step": start, "train_seconds": seconds,

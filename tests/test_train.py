@@ -2,6 +2,7 @@
 
 import json
 import os
+import shlex
 import struct
 from pathlib import Path
 
@@ -117,6 +118,12 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     assert cfg["train"]["preset"] == "E8-cpu" and cfg["candidates"] == CANDIDATES
     recs = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in recs if "loss" in r] == [1, 2, 3, 4]
+    # The run says what started it: the command line as given, the code and package versions.
+    started = recs[0]
+    assert started["event"] == "started" and started["step"] == 0
+    assert started["command"] == shlex.join(["gijax", *argv])
+    assert started["versions"]["jax"] == jax.__version__ and set(started["git"]) == {"commit",
+                                                                                      "dirty"}
     vals = [r for r in recs if r.get("split") == "val"]
     assert [v["step"] for v in vals] == [2, 4]
     assert sorted(os.listdir(run / "checkpoints")) == ["2", "4"]
@@ -160,6 +167,9 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     fails(argv + ["--override", "unet_base=4"], "another network configuration")
     # Another 3-D conv lowering computes the same weights: the finished run resumes (and stops).
     assert main(argv + ["--override", 'conv3d="native"']) == 0
+    resumed = json.loads((run / "metrics.jsonl").read_text().splitlines()[-1])
+    assert resumed["event"] == "resumed" and resumed["step"] == 4
+    assert resumed["command"].endswith("""--override 'conv3d="native"'""")
     fails([("--out" if a == "--out" else (str(tmp_path / "run2") if a == str(run) else a))
            for a in argv[:argv.index("--batch") + 1]] + ["8"] + argv[argv.index("--batch") + 2:],
           "batch size 8", "larger")                               # batch larger than the data

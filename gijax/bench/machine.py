@@ -44,6 +44,15 @@ def git_revision(root: str | os.PathLike | None = None, ignore: Sequence[str] = 
     return {"commit": commit, "dirty": bool(status.strip()) if commit else None}
 
 
+def invocation(command: str) -> dict:
+    """Who ran what, where and with which code: ``command``, the working directory, the code
+    revision (:func:`git_revision`), package versions, host and UTC time; what a long job that
+    runs in pieces records for each piece."""
+    return {"command": command, "cwd": os.getcwd(), "git": git_revision(),
+            "versions": versions(), "host": platform.node(),
+            "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+
+
 def versions() -> dict:
     out = {"python": sys.version.split()[0]}
     for name in PACKAGES:

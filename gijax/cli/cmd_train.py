@@ -102,10 +102,16 @@ def run(args) -> int:
         calibration_error_deg=args.calibration_error,
         learn_candidates=args.learn_candidates, candidates_lr=args.candidates_lr,
         candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
+    import shlex
+
+    from gijax.bench.machine import invocation
+
     data = args.data[0] if len(args.data) == 1 else args.data
     result = train(cfg, data, args.out, val=args.val, rig=args.rig,
                    allow_partial=args.allow_partial, check_data=not args.no_data_check,
-                   progress=not args.no_progress)
+                   progress=not args.no_progress,
+                   invocation=invocation(shlex.join(
+                       ["gijax", *map(str, getattr(args, "argv", None) or ["train"])])))
     if result.last_loss is not None:
         print(f"trained {args.out} to step {result.step}: last loss {result.last_loss:.5f}")
     v = result.last_validation

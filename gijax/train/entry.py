@@ -65,7 +65,7 @@ def fit_panorama(config: TrainConfig, reader, log=None):
 def train(config: TrainConfig, data, out: str | os.PathLike, *,
           val: str | os.PathLike | None = None, rig: str | None = None,
           allow_partial: bool = False, check_data: bool = True,
-          progress: bool = True) -> TrainingResult:
+          progress: bool = True, invocation: dict | None = None) -> TrainingResult:
     """Train (or resume) the run folder ``out`` on dataset ``data`` until ``config.steps``.
 
     Args:
@@ -82,6 +82,9 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
       check_data: read every file of gijax-layout datasets first (a damaged file then fails
         before training, not when the loader reaches it).
       progress: progress bars.
+      invocation: what started this piece of the run (e.g. the command and code revision,
+        :func:`gijax.bench.machine.invocation`), logged in ``metrics.jsonl`` with its start
+        or resume event.
     """
     from gijax.data import DatasetReader
     from gijax.data.augment import augment_preset
@@ -153,7 +156,7 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
     try:
         trainer = Trainer(config, out, train_rigs, make_stream, make_val,
                           rig_name=rig or ", ".join(map(str, datas)),
-                          progress=progress, val_rig=val_rig)
+                          progress=progress, val_rig=val_rig, invocation=invocation)
         try:
             history = trainer.fit()
         finally:

@@ -107,10 +107,13 @@ class Trainer:
                  make_train_stream: Callable,
                  make_val_batches: Optional[Callable[[], Iterable[dict]]] = None,
                  rig_name: str = "", progress: bool = True, devices=None,
-                 val_rig: Optional[Rig] = None):
+                 val_rig: Optional[Rig] = None, invocation: Optional[dict] = None):
         from gijax.model import create_model
 
         self.config = config
+        # What started this piece of the run (command, code revision, ...): logged with the
+        # start or resume event, so a training split over several runs says how each went.
+        self.invocation = dict(invocation or {})
         self.mc = config.model_config()
         self.run_dir = Path(run_dir)
         rigs = list(rig) if isinstance(rig, (list, tuple)) else [rig]
@@ -332,7 +335,9 @@ class Trainer:
             # first one); they are computed and logged again from here.
             drop_logs_after(self.run_dir, step)
         if step > 0:
-            self._log({"step": step, "event": "resumed"})
+            self._log({"step": step, "event": "resumed", **self.invocation})
+        elif self.invocation:
+            self._log({"step": 0, "event": "started", **self.invocation})
         bar = None
         if self.progress and self.is_main:
             from tqdm import tqdm
