@@ -83,6 +83,9 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import shlex
+
+    from gijax.bench.machine import invocation
     from gijax.io.paths import check_output_dir
     from gijax.train.trainer import init_distributed
 
@@ -102,10 +105,6 @@ def run(args) -> int:
         calibration_error_deg=args.calibration_error,
         learn_candidates=args.learn_candidates, candidates_lr=args.candidates_lr,
         candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
-    import shlex
-
-    from gijax.bench.machine import invocation
-
     data = args.data[0] if len(args.data) == 1 else args.data
     result = train(cfg, data, args.out, val=args.val, rig=args.rig,
                    allow_partial=args.allow_partial, check_data=not args.no_data_check,
