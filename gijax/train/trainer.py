@@ -344,8 +344,10 @@ class Trainer:
 
             bar = tqdm(total=total, initial=step, unit="step", dynamic_ncols=True)
         self._t_last, n_last = time.perf_counter(), 0
-        # Host seconds spent waiting for the loader since the last record: a loader that keeps
-        # up shows ~0; anything else is time the step stood still.
+        # Host seconds spent getting batches since the last record. Steps are dispatched
+        # asynchronously, so this overlaps the previous step's computation: it bounds from
+        # above the time the step stood still for data, and grows towards the step time when
+        # the loader falls behind.
         self._waited = 0.0
         # The loss of a step is read once the next step is dispatched, so that the device
         # computes while the host places the next batch; it is read at once before a
