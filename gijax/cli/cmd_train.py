@@ -109,8 +109,7 @@ def run(args) -> int:
     result = train(cfg, data, args.out, val=args.val, rig=args.rig,
                    allow_partial=args.allow_partial, check_data=not args.no_data_check,
                    progress=not args.no_progress,
-                   invocation=invocation(shlex.join(
-                       ["gijax", *map(str, getattr(args, "argv", None) or ["train"])])))
+                   invocation=invocation(shlex.join(["gijax", *args.argv])))
     if result.last_loss is not None:
         print(f"trained {args.out} to step {result.step}: last loss {result.last_loss:.5f}")
     v = result.last_validation
