@@ -309,7 +309,8 @@ def check_targets(rows: list, model: str) -> list:
 # --------------------------------------------------------------------------- figures, bundle
 
 def learning_curve(run: Path, path: Path, title: str) -> None:
-    """Training loss (per step, and its running mean over 200 steps) and validation MAE."""
+    """Training loss (per step, and its running mean over 200 steps) and validation MAE; a
+    dotted line where a piece of a split training resumed."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -330,12 +331,32 @@ def learning_curve(run: Path, path: Path, title: str) -> None:
     a.set_ylabel("training loss")
     if vals:
         b.plot([v["step"] for v in vals], [v["mae"] for v in vals], "o-", color="tab:red")
+    for piece in run_pieces(recs)[1:]:
+        for ax in (a, b):
+            ax.axvline(piece["from_step"], color="0.6", lw=0.8, ls=":")
     b.set_xlabel("step")
     b.set_ylabel("validation MAE (1/m)")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     save_png(fig, path, dpi=100)
     plt.close(fig)
+
+
+def run_pieces(records: list) -> list:
+    """The runs a training was split into, from its ``metrics.jsonl`` records: each piece's
+    first and last step, and the command, revision, versions, host and time the trainer
+    recorded when the piece started or resumed (a piece before the first such record, from a
+    trainer that did not record them yet, is listed as not recorded)."""
+    events = [r for r in records if r.get("event") in ("started", "resumed")]
+    last = max([int(r["step"]) for r in records if "loss" in r], default=0)
+    pieces = [{"event": e["event"], "from_step": int(e["step"]),
+               **{k: e[k] for k in ("command", "cwd", "git", "versions", "host", "time")
+                  if k in e}} for e in events]
+    if not pieces or pieces[0]["from_step"] > 0:
+        pieces.insert(0, {"event": "started", "from_step": 0, "recorded": False})
+    for piece, following in zip(pieces, pieces[1:] + [None]):
+        piece["to_step"] = following["from_step"] if following else last
+    return pieces
 
 
 def write_figures(out: Path, work: Path, scale: Scale, preds: dict, run: Path) -> dict:
@@ -381,6 +402,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
               f"'{run}', '{bundle}', provenance)\""],
            "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "cameras", "samples",
                                        "seed") if k in d} for d in data],
+           "runs": run_pieces(metrics_records(run)),
            "checkpoint": "best by validation MAE",
            "validation": [r for r in metrics_records(run) if r.get("split") == "val"],
            "validation_metrics": "gijax definitions (labels clamped to the candidate range, "

@@ -54,6 +54,30 @@ def _row(test, model, lst, mae):
     return {"test": test, "model": model, "list": lst, "mae": mae}
 
 
+def test_run_pieces_follow_the_recorded_starts_and_resumes():
+    """Each started / resumed record opens a piece that ends where the next one resumed (its
+    later steps were logged again by that one); the last ends at the last logged step. A run
+    whose first piece predates the records gets an unrecorded piece from step 0."""
+    def steps(a, b):
+        return [{"step": s, "loss": 0.1} for s in range(a, b + 1)]
+
+    def event(kind, step, commit):
+        return {"step": step, "event": kind, "command": "gijax train --steps 9",
+                "git": {"commit": commit, "dirty": False}, "time": f"t{step}"}
+
+    recs = steps(1, 4) + [event("resumed", 4, "aaa")] + steps(5, 7) + [
+        {"step": 6, "split": "val", "mae": 0.5}, event("resumed", 6, "bbb")] + steps(7, 9)
+    pieces = B.run_pieces(recs)
+    assert [(p["event"], p["from_step"], p["to_step"]) for p in pieces] == [
+        ("started", 0, 4), ("resumed", 4, 6), ("resumed", 6, 9)]
+    assert pieces[0]["recorded"] is False and "command" not in pieces[0]
+    assert [p["git"]["commit"] for p in pieces[1:]] == ["aaa", "bbb"]
+    assert pieces[2]["command"] == "gijax train --steps 9" and pieces[2]["time"] == "t6"
+    whole = B.run_pieces([event("started", 0, "ccc")] + steps(1, 3))
+    assert [(p["from_step"], p["to_step"], p["git"]["commit"]) for p in whole] == [(0, 3, "ccc")]
+    assert "recorded" not in whole[0]
+
+
 def test_targets_are_checked_as_stated():
     """paper-test1: <= 0.75 x RS-E32 with the training list; paper-test2/3: the spacing list
     below RS-E32; the ring: the spacing list below RS-E32 and below the training list."""
