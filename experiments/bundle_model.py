@@ -344,14 +344,14 @@ def learning_curve(run: Path, path: Path, title: str) -> None:
 
 def run_pieces(records: list) -> list:
     """The runs a training was split into, from its ``metrics.jsonl`` records: each piece's
-    first and last step, and the command, revision, versions, host and time the trainer
-    recorded when the piece started or resumed (a piece before the first such record, from a
-    trainer that did not record them yet, is listed as not recorded)."""
+    first and last step, and what the trainer recorded when it started or resumed (command,
+    revision, versions, host, time: :func:`gijax.bench.machine.invocation`). A piece before
+    the first such record, from a trainer that did not record them yet, is listed as not
+    recorded."""
     events = [r for r in records if r.get("event") in ("started", "resumed")]
     last = max([int(r["step"]) for r in records if "loss" in r], default=0)
     pieces = [{"event": e["event"], "from_step": int(e["step"]),
-               **{k: e[k] for k in ("command", "cwd", "git", "versions", "host", "time")
-                  if k in e}} for e in events]
+               **{k: v for k, v in e.items() if k not in ("step", "event")}} for e in events]
     if not pieces or pieces[0]["from_step"] > 0:
         pieces.insert(0, {"event": "started", "from_step": 0, "recorded": False})
     for piece, following in zip(pieces, pieces[1:] + [None]):
@@ -384,6 +384,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
 
 
     mix = [d for d in data if d["role"].startswith("mix-")]
+    records = metrics_records(run)
     lenses = sum(1 for d in mix if d["role"].startswith("mix-lens-"))
     layouts = sum(1 for d in mix if d["role"].startswith("mix-layout-"))
     doc = {"model": model,
@@ -402,9 +403,9 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
               f"'{run}', '{bundle}', provenance)\""],
            "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "cameras", "samples",
                                        "seed") if k in d} for d in data],
-           "runs": run_pieces(metrics_records(run)),
+           "runs": run_pieces(records),
            "checkpoint": "best by validation MAE",
-           "validation": [r for r in metrics_records(run) if r.get("split") == "val"],
+           "validation": [r for r in records if r.get("split") == "val"],
            "validation_metrics": "gijax definitions (labels clamped to the candidate range, "
                                  "pooled pixels)",
            "targets": targets, "learning_curve": "learning_curve.png",
