@@ -36,6 +36,7 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -77,17 +78,22 @@ class Recipe:
     augment: str
     calibration_deg: float
     workers: int
+    # The trained model the run starts from (what --ckpt names), or None for random weights.
+    init_from: Optional[str] = None
 
 
 RECIPES = {
     "smoke": Recipe(scenes=2, lens_variants=1, layouts=1, steps=3, batch=2, lr=4e-4, warmup=1,
                     val_every=0, ckpt_every=0, augment="photometric+body", calibration_deg=0.5,
                     workers=1),
-    # 8 datasets x 600 scenes; 20,000 steps of 8 (33 passes): about 160,000 samples, 16 times
-    # what each table network sees.
-    "cpu": Recipe(scenes=600, lens_variants=3, layouts=4, steps=20000, batch=8, lr=4e-4,
-                  warmup=500, val_every=1000, ckpt_every=250, augment="photometric+body",
-                  calibration_deg=0.5, workers=2),
+    # 8 datasets x 250 scenes (about 45 minutes to render on 2 cores); 600 steps of 8 (2.4
+    # passes, each image augmented anew): 4,800 samples in about 25 minutes, fine-tuning the
+    # bundled model of the revision it runs at. A run resumes within one work folder; a
+    # training longer than one sitting is a chain of such runs, each published before the
+    # next, and the provenance names the weights each one started from.
+    "cpu": Recipe(scenes=250, lens_variants=3, layouts=4, steps=600, batch=8, lr=4e-4,
+                  warmup=60, val_every=300, ckpt_every=150, augment="photometric+body",
+                  calibration_deg=0.5, workers=2, init_from="G16VV-cpu"),
 }
 
 # Where the bundle is expected to fail, as its provenance and the demo state it.
@@ -204,7 +210,7 @@ def train_config(scale: Scale, recipe: Recipe, seed: int):
                        batch_size=recipe.batch, steps=recipe.steps, seed=seed,
                        val_every=recipe.val_every, ckpt_every=recipe.ckpt_every,
                        keep_best=True, workers=recipe.workers, augment=recipe.augment,
-                       calibration_error_deg=recipe.calibration_deg)
+                       calibration_error_deg=recipe.calibration_deg, init_from=recipe.init_from)
 
 
 def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) -> list:
@@ -218,6 +224,8 @@ def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) 
             "--val-every", cfg.val_every, "--ckpt-every", cfg.ckpt_every, "--seed", seed,
             "--workers", cfg.workers, "--augment", cfg.augment,
             "--calibration-error", cfg.calibration_error_deg]
+    if cfg.init_from:
+        argv += ["--init-from", cfg.init_from]
     for k, v in cfg.model_overrides.items():
         argv += ["--override", f"{k}={json.dumps(v, separators=(',', ':'))}"]
     if not scale.progress:
@@ -227,11 +235,33 @@ def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) 
 
 def ensure_trained(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) -> dict:
     """Train (or resume) the bundle's run to ``recipe.steps``, or reuse it when finished; its
-    record."""
+    record (with :func:`initial_weights` under ``init``)."""
     command = gijax_command(train_argv(work, scale, recipe, seed, data))
-    return train_run(run_folder(work, scale), command, train_config(scale, recipe, seed),
-                     [d["path"] for d in data if d["role"].startswith("mix-")],
-                     work / "data" / "val", scale.progress, {"model": MODEL})
+    init = initial_weights(run_folder(work, scale), recipe)
+    trained = train_run(run_folder(work, scale), command, train_config(scale, recipe, seed),
+                        [d["path"] for d in data if d["role"].startswith("mix-")],
+                        work / "data" / "val", scale.progress, {"model": MODEL})
+    return {**trained, "init": init}
+
+
+def initial_weights(run: Path, recipe: Recipe) -> Optional[dict]:
+    """What the run started from: ``recipe.init_from``, the hash of its weights and the source
+    revision, recorded beside the run folder when the run starts (a bundled model's weights
+    change when a new bundle is published), read back when it resumes. None: random weights."""
+    from experiments.provenance import revision
+    from experiments.reporting import read_json, write_json
+    from gijax.store import resolve_model_path
+
+    if not recipe.init_from:
+        return None
+    path = run.with_name(run.name + ".init.json")
+    record = read_json(path)
+    if record is None or not (run / "checkpoints").is_dir():
+        source = resolve_model_path(recipe.init_from)
+        record = {"model": recipe.init_from, "weights_sha256_12": _weights_id(source),
+                  "git_revision": revision()}
+        write_json(path, record)
+    return record
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -387,6 +417,11 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
     records = metrics_records(run)
     lenses = sum(1 for d in mix if d["role"].startswith("mix-lens-"))
     layouts = sum(1 for d in mix if d["role"].startswith("mix-layout-"))
+    init = trained.get("init")
+    start = ("random weights" if not init else
+             f"the bundled {init['model']} of revision {init['git_revision']} (weights "
+             f"sha256 {init['weights_sha256_12']}...; its own PROVENANCE.json there says how "
+             f"it was trained)")
     doc = {"model": model,
            "trained_on": (f"{sum(d['samples'] for d in mix)} rendered indoor and outdoor "
                           f"scenes: paper-train through its own lens and {lenses} drawn lenses, "
@@ -394,7 +429,8 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"lenses (equidistant, Kannala-Brandt, Double Sphere, 180-240 deg); "
                           f"training: {recipe.steps} steps of {recipe.batch}, augmentation "
                           f"{recipe.augment}, calibration errors up to "
-                          f"{recipe.calibration_deg:g} deg"),
+                          f"{recipe.calibration_deg:g} deg, starting from {start}"),
+           "initialised_from": init,
            "limitations": LIMITATIONS,
            "made_by": prov["command"], "git_revision": prov["git_revision"],
            "commands": [d["command"] for d in data if d["role"].startswith("mix-")]

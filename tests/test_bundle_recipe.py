@@ -112,6 +112,6 @@ def test_training_command_names_every_mixture_folder_and_the_recipe(tmp_path):
     i = argv.index("--data")
     assert argv[i + 1:i + 9] == [d["path"] for d in data[:8]] and argv[i + 9] == "--val"
     for flag, value in (("--augment", "photometric+body"), ("--calibration-error", "0.5"),
-                        ("--schedule", "warmup_cosine"), ("--steps", "20000"),
-                        ("--batch", "8")):
+                        ("--schedule", "warmup_cosine"), ("--steps", "600"),
+                        ("--batch", "8"), ("--init-from", "G16VV-cpu")):
         assert argv[argv.index(flag) + 1] == value

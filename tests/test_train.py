@@ -457,3 +457,48 @@ def test_non_finite_loss_stops_the_run_before_it_is_saved(tmp_path):
     assert sorted(int(p.name) for p in (run / "checkpoints").iterdir()) == [1, 2]
     logged = [json.loads(line)["step"] for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert logged == [1, 2]
+
+
+@pytest.mark.usefixtures("quick_compiles_here")
+def test_a_run_started_from_a_trained_model_takes_its_weights_with_a_fresh_optimiser(tmp_path):
+    """``init_from`` (fine-tuning): run B, seeded differently, starts from run A's last
+    checkpoint: the same parameters and BatchNorm statistics, hence A's validation MAE, with
+    Adam's moments and step count at zero. A network of other sizes is refused naming the
+    field, and leaves no run folder; once B holds a checkpoint it resumes from it without
+    reading its source (here removed)."""
+    import shutil
+
+    from gijax.train.sources import array_stream_factory
+    from gijax.train.trainer import Trainer
+
+    arr = tiny_arrays(2)
+    stream = array_stream_factory(arr, 2, 0)
+    a = Trainer(_config(steps=3, ckpt_every=3), tmp_path / "a", tiny_rig(), stream,
+                lambda: [arr], progress=False)
+    a.fit()
+    a_mae = a.validate(3)["mae"]
+    a_params, a_rest = a.local_variables()
+    a.close()
+
+    b_cfg = _config(steps=2, ckpt_every=2, seed=7, init_from=str(tmp_path / "a"))
+    b = Trainer(b_cfg, tmp_path / "b", tiny_rig(), stream, lambda: [arr], progress=False)
+    b_params, b_rest = b.local_variables()
+    for x, y in zip(jax.tree.leaves((a_params, a_rest)), jax.tree.leaves((b_params, b_rest))):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert b.validate(0)["mae"] == pytest.approx(a_mae, rel=1e-6)
+    assert b.start_step == 0 and int(b.state["step"].addressable_data(0)) == 0
+    moments = [np.asarray(x.addressable_data(0)) for x in jax.tree.leaves(b.state["opt"])]
+    assert moments and all(not np.any(m) for m in moments)
+    b.fit()
+    b.close()
+
+    wider = dict(TINY, unet_base=2 * TINY["unet_base"])
+    with pytest.raises(ValueError, match=r"unet_base \(its 8, this run's 16\)"):
+        Trainer(_config(model_overrides=wider, init_from=str(tmp_path / "a")), tmp_path / "c",
+                tiny_rig(), stream, None, progress=False)
+    assert not (tmp_path / "c").exists()
+
+    shutil.rmtree(tmp_path / "a")
+    b2 = Trainer(b_cfg, tmp_path / "b", tiny_rig(), stream, None, progress=False)
+    assert b2.start_step == 2
+    b2.close()

@@ -65,6 +65,11 @@ def register(subparsers) -> None:
                         "and export of the run (docs/candidates.md, Learned lists)")
     p.add_argument("--candidates-lr", type=float, default=1e-2,
                    help="learning rate of the learned list's logits")
+    p.add_argument("--init-from", default=None, metavar="CKPT",
+                   help="start from a trained model instead of random weights (a run folder, "
+                        "a bundle or a bundled model's name, e.g. G16VV-cpu): fine-tuning with "
+                        "a fresh optimiser and schedule; its network must be --preset's (with "
+                        "--override). A run folder with a checkpoint resumes from that instead")
     p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
     p.add_argument("--coordinator", default=None, help="host:port of process 0 (multi-host)")
     p.add_argument("--num-processes", type=int, default=None)
@@ -104,6 +109,7 @@ def run(args) -> int:
         workers=args.workers, augment=args.augment,
         calibration_error_deg=args.calibration_error,
         learn_candidates=args.learn_candidates, candidates_lr=args.candidates_lr,
+        init_from=args.init_from,
         candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
     data = args.data[0] if len(args.data) == 1 else args.data
     result = train(cfg, data, args.out, val=args.val, rig=args.rig,

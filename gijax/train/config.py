@@ -59,6 +59,11 @@ class TrainConfig:
         turned by a random rotation of up to this angle (degrees; drawn from the seed and the
         step), so that it learns to tolerate a calibration that is slightly off; the images,
         labels and validation keep the true rig. 0 disables it.
+      init_from: a trained model to start from instead of random weights (what ``--ckpt``
+        names: a run folder's best checkpoint, a bundle or a bundled model's name): its
+        parameters and BatchNorm statistics start the run, with a fresh optimiser, schedule and
+        step count (fine-tuning). Its network configuration must be this one's. A run folder
+        that already holds a checkpoint resumes from it and does not read ``init_from``.
     """
 
     preset: str = "G16VV-cpu"
@@ -90,6 +95,7 @@ class TrainConfig:
     learn_candidates: bool = False
     candidates_lr: float = 1e-2
     calibration_error_deg: float = 0.0
+    init_from: Optional[str] = None
 
     def __post_init__(self) -> None:
         def fail(field, expected, found):

@@ -162,6 +162,9 @@ class Trainer:
             abstract = S.abstract_like(state, S.replicated(self.mesh))
             restored = self.store.restore_latest(abstract, self._check_meta)
             if restored is None:
+                if config.init_from:
+                    params, rest = self._initial_variables(params, rest)
+                    state = S.init_state(params, rest, self.tx, logits0, self.tx_cand)
                 self.state = S.place_state(state, self.mesh)
                 self.start_step, self.stream_state = 0, None
             else:
@@ -216,6 +219,30 @@ class Trainer:
         if self.is_main:
             save_run_config(self.run_dir, self.config, cand, rig_name)
         return cand
+
+    def _initial_variables(self, params, rest):
+        """``(params, rest)`` of the model ``config.init_from`` names, checked against this
+        run's network: same configuration (up to the conv lowering) and variable shapes."""
+        from flax import nnx
+
+        from gijax.store import load_model
+        from gijax.store.runs import check_param_shapes, named_shapes
+
+        spec = self.config.init_from
+        model, mc, _ = load_model(spec)
+        if dataclasses.replace(mc, conv3d=self.mc.conv3d) != self.mc:
+            diff = {f.name: (getattr(mc, f.name), getattr(self.mc, f.name))
+                    for f in dataclasses.fields(mc) if f.name != "conv3d"
+                    and getattr(mc, f.name) != getattr(self.mc, f.name)}
+            raise ValueError(f"init_from {spec!r}: its network configuration differs from this "
+                             f"run's in " + ", ".join(f"{k} (its {a!r}, this run's {b!r})"
+                                                      for k, (a, b) in diff.items()))
+        model.train()
+        _, new_params, new_rest = nnx.split(model, nnx.Param, ...)
+        for name, new, old in (("parameters", new_params, params), ("variables", new_rest, rest)):
+            check_param_shapes(Path(str(spec)), named_shapes(new), named_shapes(old),
+                               f"{self.config.preset} ({name})")
+        return new_params, new_rest
 
     def _check_meta(self, meta: dict) -> None:
         if meta.get("preset") != self.config.preset:
