@@ -502,3 +502,66 @@ def test_a_run_started_from_a_trained_model_takes_its_weights_with_a_fresh_optim
     b2 = Trainer(b_cfg, tmp_path / "b", tiny_rig(), stream, None, progress=False)
     assert b2.start_step == 2
     b2.close()
+
+
+@pytest.mark.usefixtures("quick_compiles_here")
+def test_a_run_whose_folder_is_lost_resumes_from_its_pack_with_the_same_losses(tmp_path):
+    """A run trained 2 of 4 steps with ``pack`` loses its whole run folder (another machine):
+    a new run folder with the same pack starts at step 2 and logs steps 3-4 with the losses of
+    an uninterrupted 4-step run, bit for bit (weights, BatchNorm statistics, Adam's moments
+    and the data position all came back); the log of steps 1-2 is restored from the pack. A
+    pack whose state file was altered, or one of another network, is refused in one line."""
+    import shutil
+
+    from gijax.store.packs import read_pack
+    from gijax.train.sources import array_stream_factory
+    from gijax.train.trainer import Trainer
+
+    arr = tiny_arrays(4)
+    stream = array_stream_factory(arr, 2, 0)
+    whole = Trainer(_config(steps=4, ckpt_every=2), tmp_path / "whole", tiny_rig(), stream, None,
+                    progress=False)
+    whole.fit()
+    whole.close()
+    expected = {r["step"]: r["loss"] for r in whole.history if "loss" in r}
+
+    pack = tmp_path / "pack"
+    cfg = _config(steps=4, ckpt_every=2, pack=str(pack))
+    first = Trainer(cfg, tmp_path / "run", tiny_rig(), stream, None, progress=False)
+    first.fit(steps=2)
+    first.close()
+    assert read_pack(pack).step == 2 and len(list(pack.glob("state-*.npz"))) == 1
+    shutil.rmtree(tmp_path / "run")
+
+    second = Trainer(cfg, tmp_path / "run2", tiny_rig(), stream, None, progress=False)
+    assert second.start_step == 2
+    second.fit()
+    second.close()
+    got = {r["step"]: r["loss"] for r in second.history if "loss" in r}
+    assert got == {3: expected[3], 4: expected[4]}
+    logged = [json.loads(line) for line in (tmp_path / "run2" / "metrics.jsonl").read_text()
+              .splitlines()]
+    assert [r["step"] for r in logged if "loss" in r] == [1, 2, 3, 4]
+    assert [r["loss"] for r in logged if "loss" in r] == [expected[s] for s in (1, 2, 3, 4)]
+    assert read_pack(pack).step == 4 and len(list(pack.glob("state-*.npz"))) == 1
+
+    # A damaged state file: refused naming it, before any run folder is made.
+    state_file = next(pack.glob("state-*.npz"))
+    data = bytearray(state_file.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    state_file.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=rf"{state_file.name}: its SHA-256 does not match"):
+        Trainer(cfg, tmp_path / "run3", tiny_rig(), stream, None, progress=False)
+    assert not (tmp_path / "run3").exists()
+
+    # A pack of another network is not loaded into this one.
+    other = tmp_path / "other-pack"
+    source = Trainer(_config(steps=2, ckpt_every=2, pack=str(other)), tmp_path / "o",
+                     tiny_rig(), stream, None, progress=False)
+    source.fit()
+    source.close()
+    wider = dict(TINY, unet_base=2 * TINY["unet_base"])
+    with pytest.raises(ValueError, match=r"resume pack .*other-pack: its network configuration "
+                                         r"differs from this run's in unet_base"):
+        Trainer(_config(model_overrides=wider, steps=4, ckpt_every=2, pack=str(other)),
+                tmp_path / "w", tiny_rig(), stream, None, progress=False)

@@ -70,6 +70,12 @@ def register(subparsers) -> None:
                         "a bundle or a bundled model's name, e.g. G16VV-cpu): fine-tuning with "
                         "a fresh optimiser and schedule; its network must be --preset's (with "
                         "--override). A run folder with a checkpoint resumes from that instead")
+    p.add_argument("--pack", default=None, metavar="DIR",
+                   help="resume pack: rewritten at every checkpoint with what the next piece "
+                        "of the run needs (weights, BatchNorm statistics, Adam's moments, step, "
+                        "data position, log; about 12 MB for a -cpu preset), small enough to "
+                        "commit; a run whose folder is missing or older resumes from it "
+                        "(docs/training.md, Training in pieces)")
     p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
     p.add_argument("--coordinator", default=None, help="host:port of process 0 (multi-host)")
     p.add_argument("--num-processes", type=int, default=None)
@@ -95,6 +101,8 @@ def run(args) -> int:
     from gijax.train.trainer import init_distributed
 
     check_output_dir(args.out)
+    if args.pack:
+        check_output_dir(args.pack, "--pack")
     init_distributed(args.coordinator, args.num_processes, args.process_id)
     from gijax.candidates.spec import read_candidate_file
     from gijax.train.config import TrainConfig
@@ -109,7 +117,7 @@ def run(args) -> int:
         workers=args.workers, augment=args.augment,
         calibration_error_deg=args.calibration_error,
         learn_candidates=args.learn_candidates, candidates_lr=args.candidates_lr,
-        init_from=args.init_from,
+        init_from=args.init_from, pack=args.pack,
         candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
     data = args.data[0] if len(args.data) == 1 else args.data
     result = train(cfg, data, args.out, val=args.val, rig=args.rig,

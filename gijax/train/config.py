@@ -64,6 +64,10 @@ class TrainConfig:
         parameters and BatchNorm statistics start the run, with a fresh optimiser, schedule and
         step count (fine-tuning). Its network configuration must be this one's. A run folder
         that already holds a checkpoint resumes from it and does not read ``init_from``.
+      pack: a resume pack folder (:mod:`gijax.store.packs`), rewritten at every periodic
+        checkpoint with the training state, the data stream's position and the log, small
+        enough to commit. A run whose folder holds no newer checkpoint resumes from it (on
+        another machine, after the run folder was lost); ``init_from`` is then not read.
     """
 
     preset: str = "G16VV-cpu"
@@ -96,6 +100,7 @@ class TrainConfig:
     candidates_lr: float = 1e-2
     calibration_error_deg: float = 0.0
     init_from: Optional[str] = None
+    pack: Optional[str] = None
 
     def __post_init__(self) -> None:
         def fail(field, expected, found):

@@ -27,7 +27,8 @@ from gijax.candidates.parametrisation import logits_from_candidates
 from gijax.geometry.rig import Rig
 from gijax.io.lock import FolderLock
 from gijax.train import step as S
-from gijax.store.configs import CONFIG_FILE
+from gijax.io.paths import write_text_atomic
+from gijax.store.configs import CONFIG_FILE, model_config_to_dict
 from gijax.train.checkpoints import CheckpointStore
 from gijax.train.config import TrainConfig, load_run_config, save_run_config
 from gijax.train.metrics import batch_sums, summarize
@@ -161,7 +162,15 @@ class Trainer:
                                          config.best_mode)
             abstract = S.abstract_like(state, S.replicated(self.mesh))
             restored = self.store.restore_latest(abstract, self._check_meta)
-            if restored is None:
+            pack = self._newer_pack(None if restored is None else int(restored[1]["step"]))
+            if pack is not None:
+                from gijax.store.packs import restore_state
+
+                self.state = S.place_state(restore_state(pack, abstract), self.mesh)
+                self.start_step, self.stream_state = pack.step, pack.meta.get("stream")
+                if self.is_main:
+                    write_text_atomic(self.run_dir / METRICS_FILE, "".join(pack.metrics))
+            elif restored is None:
                 if config.init_from:
                     params, rest = self._initial_variables(params, rest)
                     state = S.init_state(params, rest, self.tx, logits0, self.tx_cand)
@@ -244,6 +253,43 @@ class Trainer:
                                f"{self.config.preset} ({name})")
         return new_params, new_rest
 
+    def _newer_pack(self, checkpoint_step: Optional[int]):
+        """The run's resume pack when it is ahead of the run folder's newest checkpoint (at
+        ``checkpoint_step``, None without one) and belongs to this run; else None."""
+        if not self.config.pack:
+            return None
+        from gijax.store.packs import read_pack
+
+        pack = read_pack(self.config.pack)
+        if pack is None or (checkpoint_step is not None and pack.step <= checkpoint_step):
+            return None
+        where = Path(self.config.pack)
+        self._check_meta(pack.meta)
+        found = pack.meta.get("model_config", {})
+        expected = model_config_to_dict(dataclasses.replace(self.mc, conv3d="auto"))
+        if dict(found, conv3d="auto") != expected:
+            diff = sorted(k for k in expected if found.get(k) != expected[k] and k != "conv3d")
+            raise ValueError(f"resume pack {where}: its network configuration differs from "
+                             f"this run's in {', '.join(diff) or 'its fields'}")
+        if not np.allclose(pack.meta["candidates"], self.candidates, rtol=1e-9, atol=0):
+            raise ValueError(f"resume pack {where}: trained with candidates "
+                             f"{pack.meta['candidates']}; this run's are "
+                             f"{[float(c) for c in self.candidates]}")
+        return pack
+
+    def _write_pack(self, step: int, stream_state) -> None:
+        """Rewrite the resume pack (process 0) with the state, the stream and the log."""
+        if not (self.config.pack and self.is_main):
+            return
+        from gijax.store.packs import write_pack
+
+        meta = {**self._meta(step, stream_state), "train_config": self.config.to_dict(),
+                "model_config": model_config_to_dict(self.mc),
+                "command": self.invocation.get("command"), "git": self.invocation.get("git")}
+        path = self.run_dir / METRICS_FILE
+        lines = path.read_text().splitlines(keepends=True) if path.exists() else []
+        write_pack(self.config.pack, self.state, meta, lines)
+
     def _check_meta(self, meta: dict) -> None:
         if meta.get("preset") != self.config.preset:
             raise ValueError(f"checkpoint step {meta.get('step')} in {self.run_dir} belongs to "
@@ -263,8 +309,6 @@ class Trainer:
         """candidates.json: the learned list now (and the list it started from)."""
         if not self.is_main:
             return
-        from gijax.io.paths import write_text_atomic
-
         doc = {"step": step, "candidates": self.current_candidates.tolist(),
                "initial": [float(c) for c in self.candidates],
                "learned": True}
@@ -421,6 +465,8 @@ class Trainer:
                         if cfg.keep_best:
                             self.store.maybe_save_best(step, self.state,
                                                        self._meta(step, stream.state()), metrics)
+                if saving:     # after the validation, so the pack's log holds it
+                    self._write_pack(step, stream.state())
         finally:
             if bar is not None:
                 bar.close()
@@ -476,7 +522,6 @@ def drop_logs_after(run_dir, step: int) -> None:
     logs) again from the last checkpoint; dropping them first keeps one record per step, so
     readers need no de-duplication. A line or event cut short by the kill goes too.
     """
-    from gijax.io.paths import write_text_atomic
     from gijax.train.tbwriter import drop_events_after
 
     run_dir = Path(run_dir)
