@@ -16,7 +16,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,47 +23,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def measure(preset: str, batch: int, steps: int) -> dict:
     import jax
-    import numpy as np
 
-    from gijax.geometry.layouts import _triangle, layout_rig
-    from gijax.train import step as S
-    from gijax.train.config import TrainConfig
-    from gijax.train.trainer import model_rig
-    from gijax.model import create_model
+    from gijax.bench.train_step import time_steps, train_step_case
 
-    cfg = TrainConfig(preset=preset, batch_size=batch)
-    mc = cfg.model_config()
-    p = _triangle(0.3095015413531889)
-    rig = model_rig(layout_rig(p, p[0], masks=False))
-    if mc.num_cameras != 3:
-        raise ValueError(f"the benchmark rig has 3 cameras; {preset} needs {mc.num_cameras}")
-    t0 = time.perf_counter()
-    model = create_model(mc, 0)
-    tdef, _, params, rest = S.split_model(model)
-    tx = S.make_optimizer(cfg)
-    mesh = S.make_mesh()
-    state = S.place_state(S.init_state(params, rest, tx), mesh)
-    step = S.jit_train_step(S.build_train_step(tdef, tx, mc.loss), mesh)
-    rng = np.random.default_rng(0)
-    hs, ws = mc.surrogate_hw
-    h, w = mc.output_hw
-    batch_np = {"images": rng.uniform(0, 1, (batch, 3, hs, ws, 3)).astype(np.float32),
-                "masks": np.ones((batch, 3, hs, ws), np.float32),
-                "distance": rng.uniform(0.5, 20, (batch, h, w)).astype(np.float32),
-                "valid": np.ones((batch, h, w), bool)}
-    cand = jax.numpy.geomspace(mc.d_min, mc.d_max, mc.num_candidates)
-    gb = S.place_batch(batch_np, mesh)
-    state, out = step(state, gb, rig, cand)
-    jax.block_until_ready(out)
-    setup = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        state, out = step(state, S.place_batch(batch_np, mesh), rig, cand)
-    jax.block_until_ready(out)
-    dt = time.perf_counter() - t0
+    case = train_step_case(preset, batch)
+    dt = time_steps(case, steps)
+    loss = float(case.run()["loss"])
     return {"preset": preset, "devices": len(jax.devices()), "batch": batch, "steps": steps,
-            "samples_per_s": batch * steps / dt, "s_per_step": dt / steps,
-            "setup_and_compile_s": setup, "loss": float(out["loss"])}
+            "samples_per_s": batch / dt, "s_per_step": dt,
+            "setup_and_compile_s": case.compile_s, "loss": loss}
 
 
 def main() -> int:

@@ -279,11 +279,13 @@ def _weights_id(path: Path) -> str:
     return h.hexdigest()[:12]
 
 
-def evaluate(work: Path, scale: Scale, models: dict) -> tuple[list, dict]:
+def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
+             lists=("train", "spacing")) -> tuple[list, dict]:
     """Rows (model, list, test rig, metrics) for every model in ``models`` (label -> path)
-    with the training and the recomputed list, and RTSS, on every test set."""
+    with each of ``lists`` (the training and the recomputed list), and RTSS, on every test
+    set of ``tests``."""
     rows, preds = [], {}
-    for test in TESTS:
+    for test in tests:
         data = work / "data" / test
         n = len(dataset_seeds(data))
         res = cached_evaluation(work, {"method": RTSS, "data": test, "samples": n,
@@ -292,7 +294,7 @@ def evaluate(work: Path, scale: Scale, models: dict) -> tuple[list, dict]:
         rows.append(_row(test, RTSS, "classical", "ev", res))
         preds[(test, RTSS)] = res["first_prediction"]
         for label, path in models.items():
-            for lst in ("train", "spacing"):
+            for lst in lists:
                 log(f"  {label}, {lst} list, on {test}")
                 res = cached_evaluation(
                     work, {"method": label, "weights": _weights_id(path), "data": test,
@@ -309,7 +311,8 @@ def _row(test: str, model: str, kind: str, lst: str, res: dict) -> dict:
                                         "samples", "time_ms")}}
 
 
-def _mae(rows, test, model, lst):
+def mae_of(rows, test, model, lst):
+    """The MAE of one (test rig, model, list) row, or None."""
     for r in rows:
         if (r["test"], r["model"], r["list"]) == (test, model, lst):
             return r["mae"]
@@ -320,8 +323,8 @@ def check_targets(rows: list, model: str) -> list:
     """The targets of :data:`TARGETS` for ``model``: ``{test, target, status, numbers}``."""
     out = []
     for test, text in TARGETS.items():
-        rtss = _mae(rows, test, RTSS, "ev")
-        train, spacing = _mae(rows, test, model, "train"), _mae(rows, test, model, "spacing")
+        rtss = mae_of(rows, test, RTSS, "ev")
+        train, spacing = mae_of(rows, test, model, "train"), mae_of(rows, test, model, "spacing")
         if test == "paper-test1":
             ok = train <= 0.75 * rtss
             nums = {"model": train, RTSS: rtss, "ratio": train / rtss}

@@ -172,10 +172,12 @@ def last_validation(run_dir: Path) -> Optional[dict]:
 
 
 def train_run(run_dir: Path, command: str, config, data, val: Optional[Path], progress: bool,
-              record: dict) -> dict:
-    """Train ``config`` on ``data`` into ``run_dir`` (resuming after its newest checkpoint), or
-    reuse the finished run when its done-record holds the same ``command`` and step count.
-    Returns the done-record: ``record`` plus the command, timing and last validation."""
+              record: dict, stop_at: Optional[int] = None) -> dict:
+    """Train ``config`` on ``data`` into ``run_dir`` (resuming after its newest checkpoint, or
+    from ``config.pack``), or reuse the finished run when its done-record holds the same
+    ``command`` and step count. Returns the done-record: ``record`` plus the command, timing
+    and last validation. ``stop_at`` < ``config.steps`` trains one piece of the run and
+    returns its record with ``"finished": False`` (no done-record is written)."""
     from gijax.bench.machine import invocation
     from gijax.train.entry import train
 
@@ -189,8 +191,16 @@ def train_run(run_dir: Path, command: str, config, data, val: Optional[Path], pr
         (" with the list learned" if config.learn_candidates else "") +
         (f" (resuming after step {start})" if start else "") + f" -> {run_dir}")
     t0 = time.perf_counter()
-    train(config, data, run_dir, val=val, progress=progress, invocation=invocation(command))
+    partial = stop_at is not None and stop_at < config.steps
+    if partial and start >= stop_at:
+        return {**record, "run": str(run_dir), "command": command, "finished": False,
+                "reused": True}
+    train(config, data, run_dir, val=val, progress=progress, invocation=invocation(command),
+          stop_at=stop_at if partial else None)
     seconds = time.perf_counter() - t0
+    if partial:
+        return {**record, "run": str(run_dir), "command": command, "finished": False,
+                "train_seconds": seconds, "reused": False}
     out = {**record, "run": str(run_dir), "command": command, "steps": config.steps,
            "resumed_from_step": start, "train_seconds": seconds,
            "seconds_per_step": seconds / max(config.steps - start, 1),

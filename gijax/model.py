@@ -94,17 +94,20 @@ def model_panorama(config: ModelConfig, coverage: str | None = None) -> Panorama
     return pano
 
 
-def cost_panorama(pano: Panorama) -> Panorama:
-    """The cost-volume panorama of an output panorama: the same latitudes at half the size."""
-    return Panorama(pano.height // 2, pano.width // 2, pano.lat_min, pano.lat_max)
+def cost_panorama(pano: Panorama, stride: int = 2) -> Panorama:
+    """The cost-volume panorama of an output panorama: the same latitudes at ``1 / stride``
+    the size (a model's ``output_stride``)."""
+    return Panorama(pano.height // stride, pano.width // stride, pano.lat_min, pano.lat_max)
 
 
 def _check_output_panorama(config: ModelConfig, pano: Panorama) -> None:
     h, w = pano.shape
-    if h % 16 or w % 16:
+    m = 8 * config.output_stride
+    if h % m or w % m:
+        part = "half the output" if config.output_stride == 2 else "the output's size"
         raise ValueError(f"model {config.name!r}: an output panorama of {h} x {w} cannot run; "
-                         f"both sides must be divisible by 16 (the cost volume is half the "
-                         f"output and the U-Net halves it three times)")
+                         f"both sides must be divisible by {m} (the cost volume is {part} "
+                         f"and the U-Net halves it three times)")
 
 
 def sweep_grids(rig: Rig, candidates: Array, config: ModelConfig,
@@ -114,7 +117,7 @@ def sweep_grids(rig: Rig, candidates: Array, config: ModelConfig,
     panorama ``pano`` (default :func:`model_panorama`), oriented by the rig's panorama frame."""
     pano = model_panorama(config) if pano is None else pano
     _check_output_panorama(config, pano)
-    return sweep_grid(rig, candidates, cost_panorama(pano),
+    return sweep_grid(rig, candidates, cost_panorama(pano, config.output_stride),
                       Panorama.hemisphere(*config.feature_hw))
 
 
@@ -197,15 +200,16 @@ def forward_surrogates(model: "OmniStereoNet", surrogates: Array, masks: Array,
     sampled, cam_valid = sweep(feats, masks, grids, cfg.sweep_boundary)
     volume = model.cost_volume(sampled, cam_valid.astype(dtype))
     logits = model.unet(volume)
-    # The output is twice the cost grid, whichever panorama the grids cover.
+    # The output is output_stride x the cost grid, whichever panorama the grids cover.
+    k = cfg.output_stride
     h, w = logits.shape[2:4]
-    out = dict(regress(logits, grids.candidates.astype(dtype), (2 * h, 2 * w)))
+    out = dict(regress(logits, grids.candidates.astype(dtype), (k * h, k * w)))
     out["logits"] = logits
     needed = 2 if cfg.cost_volume == "variance" else n
     # Float reductions: TensorRT reduces float tensors only (no integer / boolean ReduceSum).
     seen_by = jnp.min(jnp.sum(cam_valid.astype(dtype), axis=1), axis=1)   # (B, h, w)
     cell_ok = seen_by >= needed
-    out["valid"] = jnp.repeat(jnp.repeat(cell_ok, 2, axis=1), 2, axis=2)
+    out["valid"] = jnp.repeat(jnp.repeat(cell_ok, k, axis=1), k, axis=2)
     return out
 
 

@@ -113,6 +113,16 @@ def test_cpu_presets_keep_structure_and_validate():
         dataclasses.replace(base, conv3d="fast")
     assert base.conv3d == "auto"
     assert isinstance(hash(base), int)  # usable as a jit static argument
+    with pytest.raises(ValueError, match="output_stride"):
+        dataclasses.replace(base, output_stride=4)
+    # gijax's designs: the G16VV-cpu network with its cost volume at the output's size, or
+    # with 32 candidates; the same parameters in both (every resized part is convolutional).
+    fine, g32, g16vv = get_preset("G16VV-cpu-fine"), get_preset("G32VV-cpu"), PRESETS["G16VV-cpu"]
+    assert fine.cost_hw == fine.output_hw == (32, 128) and fine.output_stride == 1
+    assert g32.num_candidates == 32 and g32.cost_hw == (16, 64)
+    assert (dataclasses.replace(fine, name=g16vv.name, cost_hw=(16, 64), output_stride=2)
+            == dataclasses.replace(g32, name=g16vv.name, num_candidates=16) == g16vv)
+    assert all(c.output_stride == 2 for n, c in PRESETS.items() if n in PAPER)
 
 
 # ----------------------------------------------------------------------------- cost volumes
@@ -353,7 +363,13 @@ def test_regress_matches_numpy_reference():
     np.testing.assert_allclose(np.asarray(r["entropy"][1]), math.log(8), rtol=1e-6)
     np.testing.assert_allclose(np.asarray(r["inv_distance"][1]), np.mean(1 / cand), rtol=1e-5)
     with pytest.raises(ValueError, match="output_hw"):
-        regress(jnp.zeros((1, 8, 3, 5)), jnp.asarray(cand), (3, 5))
+        regress(jnp.zeros((1, 8, 3, 5)), jnp.asarray(cand), (4, 7))
+    # Output at the logits' own size (output_stride 1): the softmax of the logits themselves.
+    logits = np.random.default_rng(3).normal(size=(1, 8, 3, 5)).astype(np.float32)
+    same = regress(jnp.asarray(logits), jnp.asarray(cand, jnp.float32), (3, 5))
+    e = np.exp(logits - logits.max(axis=1, keepdims=True))
+    np.testing.assert_allclose(np.asarray(same["prob"]), e / e.sum(axis=1, keepdims=True),
+                               rtol=1e-5, atol=1e-7)
     with pytest.raises(ValueError, match="candidates"):
         regress(jnp.zeros((1, 8, 3, 5)), jnp.asarray(cand[:4]), (6, 10))
 

@@ -13,6 +13,9 @@ G16V-released  16 GI       volume  plain      variance 16  in16 / f32   4.15 M (
 G16VV          16 GI       volume  spherical  variance 16  in16 / f96   36.5 M
 =============  ==========  ======  =========  ===========  ===========  =======================
 
+CPU-scale designs of gijax's own (options off in the paper presets): ``G16VV-cpu-fine`` (the cost
+volume at the output's 32 x 128, ``output_stride=1``) and ``G32VV-cpu`` (32 candidates).
+
 The ``-cpu`` presets keep every structural choice (candidate count and kind, loss, feature kind,
 cost-volume kind, camera count, mask augmentation) and shrink the sizes so that a model trains on
 a laptop CPU in minutes: raw fisheye images scaled by 0.25, 128 x 512 surrogates, 32 x 128
@@ -32,6 +35,7 @@ _COST_VOLUMES = ("concat", "variance")
 _SPHERICAL_TAPS = ("release", "tangent")
 _SWEEP_BOUNDARIES = ("zeros", "wrap")
 PANORAMA_COVERAGES = ("hemisphere", "sphere")
+OUTPUT_STRIDES = (1, 2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +52,9 @@ class ModelConfig:
     intrinsics before resampling (1.0 at paper size). Distances ``d_min``/``d_max`` are metres.
     ``unet_in`` is the number of channels of the cost volume, which the U-Net consumes: the
     camera count times ``feature_channels`` for concat, ``feature_channels`` for variance.
+    ``output_stride`` is ``output_hw / cost_hw``: 2 in the paper (the logits are upsampled x2
+    before the softmax); 1 puts the cost volume at the output's resolution (gijax's finer
+    CPU-scale design, ``G16VV-cpu-fine``: a cell per feature pixel, sharper depth edges).
 
     Two choices keep the release's behaviour by default and offer gijax's alternative:
 
@@ -89,6 +96,7 @@ class ModelConfig:
     sweep_boundary: str = "zeros"
     conv3d: str = "auto"
     panorama: str = "hemisphere"
+    output_stride: int = 2
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -122,8 +130,11 @@ class ModelConfig:
         if any(s % 4 for s in self.surrogate_hw):
             fail("surrogate_hw", "both sides divisible by 4 (features are at stride 4)",
                  self.surrogate_hw)
-        if tuple(self.output_hw) != (2 * self.cost_hw[0], 2 * self.cost_hw[1]):
-            fail("output_hw", f"twice cost_hw = {(2 * self.cost_hw[0], 2 * self.cost_hw[1])}",
+        if self.output_stride not in OUTPUT_STRIDES:
+            fail("output_stride", f"one of {OUTPUT_STRIDES}", self.output_stride)
+        k = self.output_stride
+        if tuple(self.output_hw) != (k * self.cost_hw[0], k * self.cost_hw[1]):
+            fail("output_hw", f"output_stride x cost_hw = {(k * self.cost_hw[0], k * self.cost_hw[1])}",
                  self.output_hw)
         if len(self.feature_blocks) != 2 or any(b < 0 for b in self.feature_blocks):
             fail("feature_blocks", "two non-negative block counts", self.feature_blocks)
@@ -197,6 +208,18 @@ _CPU_BASE = {"G16V-released": 12, "G16VV": 16}
 
 PRESETS: dict[str, ModelConfig] = {c.name: c for c in _PAPER}
 PRESETS.update({c.name + "-cpu": _cpu(c, _CPU_BASE.get(c.name, 16)) for c in _PAPER})
+
+# gijax's CPU-scale designs, compared at an equal training budget by
+# experiments/design_comparison.py (not the paper's; every new part is an option that the paper
+# presets leave off). The G16VV-cpu cost volume has a cell per 2 x 2 output pixels (5.6 degrees
+# of the hemisphere's width): -fine puts it at the output's resolution, a cell per feature
+# pixel, with the same weights (the cost-volume conv and U-Net are fully convolutional).
+_G16VV_CPU = PRESETS["G16VV-cpu"]
+_DESIGNS = [
+    dataclasses.replace(_G16VV_CPU, name="G16VV-cpu-fine", cost_hw=(32, 128), output_stride=1),
+    dataclasses.replace(_G16VV_CPU, name="G32VV-cpu", num_candidates=32),
+]
+PRESETS.update({c.name: c for c in _DESIGNS})
 
 # Parameter counts of the paper-size networks as stated in REFERENCE section 4 (trainable
 # parameters of feature extractor, cost-volume conv and U-Net).

@@ -47,7 +47,7 @@ def fit_panorama(config: TrainConfig, reader, log=None):
     if coverage != mc.panorama:
         h, w = model_panorama(mc, coverage).shape
         over = dict(config.model_overrides, panorama=coverage, output_hw=[h, w],
-                    cost_hw=[h // 2, w // 2])
+                    cost_hw=[h // mc.output_stride, w // mc.output_stride])
         config = dataclasses.replace(config, model_overrides=over)
         mc = config.model_config()
         if log is not None:
@@ -65,7 +65,8 @@ def fit_panorama(config: TrainConfig, reader, log=None):
 def train(config: TrainConfig, data, out: str | os.PathLike, *,
           val: str | os.PathLike | None = None, rig: str | None = None,
           allow_partial: bool = False, check_data: bool = True,
-          progress: bool = True, invocation: dict | None = None) -> TrainingResult:
+          progress: bool = True, invocation: dict | None = None,
+          stop_at: int | None = None) -> TrainingResult:
     """Train (or resume) the run folder ``out`` on dataset ``data`` until ``config.steps``.
 
     Args:
@@ -82,6 +83,9 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
       check_data: read every file of gijax-layout datasets first (a damaged file then fails
         before training, not when the loader reaches it).
       progress: progress bars.
+      stop_at: end this piece after that many steps in all (default ``config.steps``); the
+        schedule is still ``config.steps`` long, and the same call without it (or with a later
+        ``stop_at``) continues the run.
       invocation: what started this piece of the run (e.g. the command and code revision,
         :func:`gijax.bench.machine.invocation`), logged in ``metrics.jsonl`` with its start
         or resume event.
@@ -158,7 +162,7 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
                           rig_name=rig or ", ".join(map(str, datas)),
                           progress=progress, val_rig=val_rig, invocation=invocation)
         try:
-            history = trainer.fit()
+            history = trainer.fit(stop_at)
         finally:
             trainer.close()
     finally:
