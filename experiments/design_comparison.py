@@ -11,10 +11,10 @@ images RTSS matches on. Each design here spends the CPU differently (``gijax.nn.
 Every design trains from random weights (seed 0) on the bundle's data (the rig-and-lens
 mixture of ``experiments/bundle_model.py``, same augmentation, calibration errors and
 schedule shape) for the same *budget of training seconds*: each design's seconds per step
-are measured side by side (alternating rounds, one process, batch 8) and its step count is
-the budget divided by them. The measurement is stored in ``budget.json`` beside the results
-and reused, so that a comparison trained in pieces on several machines keeps the step counts
-of one measurement. The designs train in turns, a slice of each budget at a time, so that a
+are measured side by side with the reference design's (alternating rounds, one process,
+batch 8) and its step count is the budget divided by them. The measurements are stored in
+``budget.json`` beside the results and reused, so that a comparison trained in pieces on
+several machines keeps its step counts (:func:`measure_budget`). The designs train in turns, a slice of each budget at a time, so that a
 stop leaves them at equal shares; each run keeps a resume pack under ``experiments/packs/``
 (commit it at a stop; the same command continues). Validation MAE (24 held-out
 ``paper-train`` scenes) is logged along the way and plotted against training seconds; a
@@ -91,29 +91,45 @@ def overrides(scale: Scale, design: str) -> dict:
 # --------------------------------------------------------------------------- budget
 
 def measure_budget(scale: Scale, budget: Budget, path: Path) -> dict:
-    """Seconds per step of every design, measured side by side, and the step counts they
-    give; read from ``path`` when it holds a measurement of the same budget and designs."""
-    stored = read_json(path)
-    key = {"designs": list(DESIGNS), "batch": budget.batch, "seconds": budget.seconds,
-           "scale": scale.name}
-    if stored and stored.get("key") == key:
-        log(f"budget: the step counts measured {stored['measured']['time']} "
-            f"({path.name})")
-        return stored
+    """Seconds per step of every design and the step counts they give, kept in ``path``.
+
+    Machines differ (this project's 2-core machines have run 2.4x apart), so a design's cost is
+    stored as its time relative to the reference design (the first of :data:`DESIGNS`),
+    measured side by side with it in alternating rounds, and its step count is the budget
+    over that ratio times the reference's seconds per step of the first measurement. A design
+    added later is measured beside the reference on whatever machine runs then, and the
+    designs already measured keep their step counts.
+    """
     from gijax.bench.machine import invocation
     from gijax.bench.train_step import alternating_step_seconds, train_step_case
 
-    log(f"budget: timing the designs' training steps (batch {budget.batch}, "
+    key = {"batch": budget.batch, "seconds": budget.seconds, "scale": scale.name,
+           "reference": DESIGNS[0]}
+    doc = read_json(path)
+    if not doc or doc.get("key") != key:
+        doc = {"key": key, "reference_s_per_step": None, "ratio": {}, "steps": {},
+               "s_per_step": {}, "measurements": []}
+    missing = [d for d in DESIGNS if d not in doc["ratio"]]
+    if not missing:
+        log(f"budget: the step counts of {path} ({len(doc['measurements'])} measurement(s))")
+        return doc
+    timed = [DESIGNS[0]] + [d for d in missing if d != DESIGNS[0]]
+    log(f"budget: timing {', '.join(timed)} side by side (batch {budget.batch}, "
         f"{budget.timing_rounds} alternating rounds)")
     cases = [train_step_case(design_preset(scale, d), budget.batch, overrides(scale, d))
-             for d in DESIGNS]
-    per_step = alternating_step_seconds(cases, budget.timing_steps, budget.timing_rounds,
-                                        progress=lambda line: log("  " + line))
-    steps = {d: max(int(budget.seconds / per_step[design_preset(scale, d)]), budget.min_steps)
-             for d in DESIGNS}
-    doc = {"key": key, "s_per_step": {d: per_step[design_preset(scale, d)] for d in DESIGNS},
-           "compile_s": {d: c.compile_s for d, c in zip(DESIGNS, cases)}, "steps": steps,
-           "measured": invocation("design_comparison budget")}
+             for d in timed]
+    per = alternating_step_seconds(cases, budget.timing_steps, budget.timing_rounds,
+                                   progress=lambda line: log("  " + line))
+    per = {d: per[design_preset(scale, d)] for d in timed}
+    if doc["reference_s_per_step"] is None:
+        doc["reference_s_per_step"] = per[DESIGNS[0]]
+    for d in missing:
+        doc["ratio"][d] = per[d] / per[DESIGNS[0]]
+        doc["s_per_step"][d] = doc["ratio"][d] * doc["reference_s_per_step"]
+        doc["steps"][d] = max(int(budget.seconds / doc["s_per_step"][d]), budget.min_steps)
+    doc["measurements"].append({"s_per_step": per,
+                                "compile_s": {d: c.compile_s for d, c in zip(timed, cases)},
+                                **invocation("design_comparison budget")})
     write_json(path, doc)
     return doc
 
@@ -294,8 +310,8 @@ def main(argv=None) -> int:
     if results is not None:
         text = (f"Each design trained from random weights on the bundle's mixture for "
                 f"{budget.seconds / 60:.0f} minutes of training (its seconds per step at batch "
-                f"{budget.batch}, measured side by side on "
-                f"{measured['measured'].get('host', 'this machine')}, times its steps).\n\n"
+                f"{budget.batch} relative to `{DESIGNS[0]}`'s, measured side by side in alternating "
+                f"rounds, times its steps; `budget.json` holds the measurements).\n\n"
                 f"{body}\n\n![validation MAE against training time]({figure.name})\n\n"
                 f"{provenance_markdown(prov)}")
         publish_section(results, NAME, text, [figure])
