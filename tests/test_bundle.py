@@ -56,6 +56,61 @@ def test_bundle_of_another_network_is_refused(tmp_path):
         load_bundle(out)
 
 
+def test_a_bundle_replaces_only_a_bundle_and_survives_a_kill_mid_swap(tmp_path, monkeypatch):
+    """``save_bundle`` refuses, before any work and naming the folder, an output that is not a
+    bundle (a dataset-like folder: every file stays), one that holds an input, and the working
+    folder; it replaces an existing bundle. A kill after the old bundle was moved aside (and
+    before the new one was renamed in) is recovered by the next call: the old bundle comes
+    back, the temporaries go."""
+    import os
+
+    cfg, config_file = _run_config(tmp_path)
+    model = create_model(cfg.model_config(), seed=3)
+    data = tmp_path / "dataset"
+    data.mkdir()
+    for name in ("metadata.json", "manifest.json", "cam0.png"):
+        (data / name).write_text(name)
+    with pytest.raises(ValueError, match=r"bundle folder .*dataset: exists and is not a bundle "
+                                         r"\(it holds cam0.png, manifest.json, metadata.json\)"):
+        save_bundle(model, config_file, data)
+    assert sorted(p.name for p in data.iterdir()) == ["cam0.png", "manifest.json",
+                                                      "metadata.json"]
+    with pytest.raises(ValueError, match="holds the input"):
+        save_bundle(model, config_file, config_file.parent)
+    monkeypatch.chdir(data)
+    with pytest.raises(ValueError, match="is the working folder or holds it"):
+        save_bundle(model, config_file, tmp_path)
+    with pytest.raises(ValueError, match="is the working folder or holds it"):
+        save_bundle(model, config_file, ".")
+    monkeypatch.chdir(tmp_path)
+
+    out = save_bundle(model, config_file, tmp_path / "bundle", {"v": 1})
+    save_bundle(model, config_file, out, {"v": 2})          # a bundle is replaced
+    assert json.loads((out / "PROVENANCE.json").read_text()) == {"v": 2}
+
+    real_replace = os.replace
+
+    def killed_after_moving_aside(src, dst):
+        real_replace(src, dst)
+        if ".old-" in str(dst):
+            raise KeyboardInterrupt          # the process dies between the two renames
+
+    monkeypatch.setattr(os, "replace", killed_after_moving_aside)
+    with pytest.raises(KeyboardInterrupt):
+        save_bundle(model, config_file, out, {"v": 3})
+    monkeypatch.setattr(os, "replace", real_replace)
+    assert not out.exists() and len(list(tmp_path.glob(".bundle.old-*"))) == 1
+    save_bundle(model, config_file, tmp_path / "elsewhere")  # another bundle: no recovery here
+    assert not out.exists()
+    from gijax.train.bundle import _recover
+
+    _recover(out)                            # what the next call on this bundle does first
+    assert json.loads((out / "PROVENANCE.json").read_text()) == {"v": 2}
+    save_bundle(model, config_file, out, {"v": 4})
+    assert json.loads((out / "PROVENANCE.json").read_text()) == {"v": 4}
+    assert [p.name for p in tmp_path.glob(".bundle.*") if p.is_dir()] == []
+
+
 def test_truncated_weights_name_the_file(tmp_path):
     cfg, config_file = _run_config(tmp_path)
     out = save_bundle(create_model(cfg.model_config()), config_file, tmp_path / "bundle")

@@ -129,6 +129,28 @@ def test_second_render_into_a_folder_fails_naming_the_first(tmp_path):
     assert not (out / LOCK_FILE).exists()
 
 
+def test_a_lock_file_planted_as_a_link_is_refused_and_its_target_untouched(tmp_path, rig,
+                                                                            capsys):
+    """``ln -s ../victim.txt DS/.gijax.lock`` before a writer takes DS: the lock never opens
+    through the link (the victim keeps its bytes), and ``gijax render`` says so in one line
+    before it renders anything."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    folder = tmp_path / "DS"
+    folder.mkdir()
+    (folder / LOCK_FILE).symlink_to("../victim.txt")
+    with pytest.raises(ValueError, match=r"lock file .*\.gijax\.lock is a symbolic link"):
+        DatasetWriter(folder, rig, PANO)
+    rig_file = tmp_path / "tiny.yaml"
+    save_rig(tiny_rig(), rig_file)
+    code = main(["render", "--rig", str(rig_file), "--out", str(folder), "--seed", "1",
+                 "--pano", "32x8", "--samples", "1"])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert code != 0 and len(err) == 1 and "is a symbolic link" in err[0], err
+    assert victim.read_text() == "precious" and (folder / LOCK_FILE).is_symlink()
+    assert not (folder / "manifest.json").exists()
+
+
 def test_stale_lock_of_a_killed_process_is_taken_over(tmp_path, rig):
     folder = tmp_path / "data"
     folder.mkdir()

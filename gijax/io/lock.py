@@ -14,10 +14,12 @@ removal and locked the old, unlinked file notices the changed inode and tries ag
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import os
 import socket
+import stat
 import sys
 import time
 from pathlib import Path
@@ -31,6 +33,23 @@ class FolderLockedError(RuntimeError):
     def __init__(self, message: str, holder: dict):
         super().__init__(message)
         self.holder = holder
+
+
+def _open_lock_file(path: Path, flags: int) -> int:
+    """``os.open`` of a lock file that never follows a link planted at its name (which would
+    let the lock record overwrite the link's target) and accepts only a regular file."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+                     | os.O_NONBLOCK, 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ValueError(f"lock file {path} is a symbolic link; gijax never writes through "
+                             f"one: remove the link and run again") from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ValueError(f"lock file {path} is not a regular file; remove it and run again")
+    return fd
 
 
 def _read_record(fd: int) -> dict:
@@ -87,7 +106,7 @@ class FolderLock:
         if self._fd is not None:
             return self
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = _open_lock_file(self.path, os.O_RDWR | os.O_CREAT)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -98,7 +117,7 @@ class FolderLock:
                     f"({describe_holder(holder)}); wait for it to finish or use another "
                     f"folder", holder) from None
             try:
-                st, now = os.fstat(fd), os.stat(self.path)
+                st, now = os.fstat(fd), os.lstat(self.path)
                 same = (st.st_ino, st.st_dev) == (now.st_ino, now.st_dev)
             except FileNotFoundError:
                 same = False
@@ -120,7 +139,7 @@ class FolderLock:
             return
         try:
             # Remove the file only while it is still ours, so a clean folder has no lock file.
-            st, now = os.fstat(fd), os.stat(self.path)
+            st, now = os.fstat(fd), os.lstat(self.path)
             if (st.st_ino, st.st_dev) == (now.st_ino, now.st_dev):
                 os.unlink(self.path)
         except FileNotFoundError:
@@ -146,7 +165,7 @@ def holder_of(folder, lock_file=None) -> dict | None:
     """The record of the live process holding ``folder``'s lock, or None when nobody does."""
     path = Path(lock_file) if lock_file is not None else Path(folder) / LOCK_FILE
     try:
-        fd = os.open(path, os.O_RDONLY)
+        fd = _open_lock_file(path, os.O_RDONLY)
     except FileNotFoundError:
         return None
     try:

@@ -108,7 +108,10 @@ def import_release_weights(src: str | os.PathLike, preset: str, out: str | os.Pa
     from gijax.train.bundle import save_bundle
     from gijax.train.config import TrainConfig, save_run_config
 
+    from gijax.train.bundle import check_replaceable
+
     src = Path(src)
+    check_replaceable(out, (src,))   # before any work: never a folder that is not a bundle
     get_preset(preset)  # an unknown preset name fails here, naming the valid ones
     overrides = dict(overrides or {})
     unknown = set(overrides) - {f.name for f in dataclasses.fields(ModelConfig)}
@@ -129,4 +132,4 @@ def import_release_weights(src: str | os.PathLike, preset: str, out: str | os.Pa
     }
     with tempfile.TemporaryDirectory() as tmp:
         save_run_config(tmp, train_cfg, candidates, rig_name="")
-        return save_bundle(model, Path(tmp) / CONFIG_FILE, out, provenance)
+        return save_bundle(model, Path(tmp) / CONFIG_FILE, out, provenance, inputs=(src,))
