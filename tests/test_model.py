@@ -101,6 +101,36 @@ def test_variance_model_any_camera_count_and_order(variance_model):
     np.testing.assert_allclose(np.asarray(out3["prob"]).sum(1), 1.0, atol=1e-5)
 
 
+def test_output_stride_1_runs_the_same_weights_with_the_cost_volume_at_the_output_size(
+        variance_model):
+    """``output_stride=1`` (the G16VV-cpu-fine design): the coarse model's weights load as they
+    are; the U-Net's logits come out at the output's size and the probabilities are their
+    softmax (no upsampling), and a cell is valid where the coarse model's 2 x 2 block is,
+    up to the cells along the coarse grid's edges of visibility."""
+    from gijax.model import sweep_grids
+
+    fine_cfg = dataclasses.replace(TINY_VAR, name="tiny-fine", cost_hw=TINY_VAR.output_hw,
+                                   output_stride=1)
+    fine = create_model(fine_cfg, seed=9)
+    nnx.update(fine, nnx.state(variance_model))
+    fine.eval()
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 0)
+    out = forward(fine, sur, m, rig, jnp.asarray(G8))
+    coarse = forward(variance_model, sur, m, rig, jnp.asarray(G8))
+    assert out["logits"].shape == (1, 8, *fine_cfg.output_hw)
+    assert out["inv_distance"].shape == coarse["inv_distance"].shape == (1, 16, 64)
+    logits = np.asarray(out["logits"], np.float64)
+    e = np.exp(logits - logits.max(axis=1, keepdims=True))
+    np.testing.assert_allclose(np.asarray(out["prob"]), e / e.sum(1, keepdims=True), atol=1e-6)
+    px, ok = sweep_grids(rig, jnp.asarray(G8), fine_cfg)
+    assert px.shape == (3, 8, 16, 64, 2) and ok.shape == (3, 8, 16, 64)
+    agree = np.mean(np.asarray(out["valid"]) == np.asarray(coarse["valid"]))
+    assert agree > 0.9, agree
+    assert np.asarray(out["valid"]).any() and np.all(np.isfinite(np.asarray(out["inv_distance"])))
+
+
 def test_candidates_swap_without_touching_weights(variance_model):
     pos = tri_positions()
     rig = rig_from(pos, pos[0])

@@ -492,6 +492,13 @@ def test_a_run_started_from_a_trained_model_takes_its_weights_with_a_fresh_optim
     b.fit()
     b.close()
 
+    # The cost volume at the output's size (output_stride 1) resizes no weight: accepted.
+    fine = dict(TINY, cost_hw=list(TINY["output_hw"]), output_stride=1)
+    f = Trainer(_config(model_overrides=fine, steps=1, init_from=str(tmp_path / "a")),
+                tmp_path / "f", tiny_rig(), stream, None, progress=False)
+    for x, y in zip(jax.tree.leaves(a_params), jax.tree.leaves(f.local_variables()[0])):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    f.close()
     wider = dict(TINY, unet_base=2 * TINY["unet_base"])
     with pytest.raises(ValueError, match=r"unet_base \(its 8, this run's 16\)"):
         Trainer(_config(model_overrides=wider, init_from=str(tmp_path / "a")), tmp_path / "c",

@@ -239,9 +239,14 @@ class Trainer:
 
         spec = self.config.init_from
         model, mc, _ = load_model(spec)
-        if dataclasses.replace(mc, conv3d=self.mc.conv3d) != self.mc:
+        # Fields that resize the cost volume and output, not any weight: a model trained at one
+        # resolution starts a run at another (e.g. G16VV-cpu -> G16VV-cpu-fine).
+        resolution = {"name", "conv3d", "cost_hw", "output_hw", "output_stride"}
+        same = {f.name: getattr(self.mc, f.name) for f in dataclasses.fields(mc)
+                if f.name in resolution}
+        if dataclasses.replace(mc, **same) != self.mc:
             diff = {f.name: (getattr(mc, f.name), getattr(self.mc, f.name))
-                    for f in dataclasses.fields(mc) if f.name != "conv3d"
+                    for f in dataclasses.fields(mc) if f.name not in resolution
                     and getattr(mc, f.name) != getattr(self.mc, f.name)}
             raise ValueError(f"init_from {spec!r}: its network configuration differs from this "
                              f"run's in " + ", ".join(f"{k} (its {a!r}, this run's {b!r})"
