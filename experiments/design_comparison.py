@@ -205,6 +205,12 @@ def curves(work: Path, measured: dict) -> dict:
     return out
 
 
+def trained_steps(work: Path) -> dict:
+    """Per design: the last step its log records."""
+    return {d: max([int(r["step"]) for r in metrics_records(work / "runs" / f"design-{d}")
+                    if "loss" in r], default=0) for d in DESIGNS}
+
+
 def plot(curve: dict, budget_s: float, path: Path) -> None:
     import matplotlib
 
@@ -225,7 +231,7 @@ def plot(curve: dict, budget_s: float, path: Path) -> None:
     plt.close(fig)
 
 
-def table(measured: dict, curve: dict, tests: dict) -> str:
+def table(measured: dict, curve: dict, tests: dict, trained: dict) -> str:
     from gijax.nn.presets import get_preset
     from gijax.store.assets import parameter_count
 
@@ -241,7 +247,7 @@ def table(measured: dict, curve: dict, tests: dict) -> str:
         lines.append(
             f"| `{d}` | {cfg.num_candidates} x {cfg.cost_hw[0]} x {cfg.cost_hw[1]} | "
             f"{parameter_count(cfg) / 1e6:.2f} M | {measured['s_per_step'][d]:.2f} | "
-            f"{measured['steps'][d]} | {last[1] if last else 0} | {fmt(best)} | "
+            f"{measured['steps'][d]} | {trained[d]} | {fmt(best)} | "
             f"{fmt(last[2] if last else None)} | "
             f"{fmt(test['model']) + ' (' + fmt(test['rtss']) + ')' if test else '-'} |")
     return "\n".join(lines)
@@ -269,6 +275,9 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog="\n".join(__doc__.splitlines()[2:]))
     add_common_arguments(parser, NAME)
+    parser.add_argument("--report-only", action="store_true",
+                        help="train nothing: report the designs as far as their runs (or "
+                             "packs) have come, e.g. at a stop between two turns")
     parser.add_argument("--budget-minutes", type=float, default=None,
                         help="training minutes per design (default: 45 at --scale cpu); the "
                              "step counts come from one side-by-side timing, stored in "
@@ -295,20 +304,27 @@ def main(argv=None) -> int:
     durations = {"data_s": time.perf_counter() - t0}
     measured = measure_budget(scale, budget, out / "budget.json")
     t0 = time.perf_counter()
-    records = train_designs(work, scale, budget, measured, args.seed, out)
+    if args.report_only:
+        records = {d: {"run": str(work / "runs" / f"design-{design_preset(scale, d)}"),
+                       "finished": False} for d in DESIGNS}
+    else:
+        records = train_designs(work, scale, budget, measured, args.seed, out)
     durations["train_s"] = time.perf_counter() - t0
     tests = evaluate_finished(work, scale, records)
     curve = curves(work, measured)
     figure = out / "design_comparison.png"
     plot(curve, budget.seconds, figure)
-    body = table(measured, curve, tests)
+    body = table(measured, curve, tests, trained_steps(work))
     prov = provenance_record(f"{NAME}.py", argv, scale, args.seed, work, started, durations,
                              data)
     doc = {"budget": dataclasses.asdict(budget), "measured": measured, "curves": curve,
            "tests": tests, "records": records, "provenance": prov, "revision": revision()}
     save_table(out / NAME, "CPU-scale designs at an equal training budget", body, doc)
     if results is not None:
-        text = (f"Each design trained from random weights on the bundle's mixture for "
+        done = all(r.get("finished", True) for r in records.values())
+        state = "" if done else ("**In progress**: the designs train in turns; the rows show "
+                                 "how far each has come, at equal shares of the budget.\n\n")
+        text = (f"{state}Each design trains from random weights on the bundle's mixture for "
                 f"{budget.seconds / 60:.0f} minutes of training (its seconds per step at batch "
                 f"{budget.batch} relative to `{DESIGNS[0]}`'s, measured side by side in alternating "
                 f"rounds, times its steps; `budget.json` holds the measurements).\n\n"
