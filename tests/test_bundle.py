@@ -111,6 +111,19 @@ def test_a_bundle_replaces_only_a_bundle_and_survives_a_kill_mid_swap(tmp_path, 
     assert [p.name for p in tmp_path.glob(".bundle.*") if p.is_dir()] == []
 
 
+def test_non_finite_weights_are_refused_naming_the_array(tmp_path):
+    cfg, config_file = _run_config(tmp_path)
+    out = save_bundle(create_model(cfg.model_config(), seed=3), config_file, tmp_path / "b")
+    with np.load(out / WEIGHTS_FILE) as f:
+        weights = {k: f[k] for k in f.files}
+    key = sorted(k for k in weights if k.endswith("kernel"))[0]
+    weights[key] = weights[key].copy()
+    weights[key].flat[3] = np.nan
+    np.savez(out / WEIGHTS_FILE, **weights)
+    with pytest.raises(ValueError, match=rf"weights.npz: weights {key} hold 1 non-finite"):
+        load_bundle(out)
+
+
 def test_truncated_weights_name_the_file(tmp_path):
     cfg, config_file = _run_config(tmp_path)
     out = save_bundle(create_model(cfg.model_config()), config_file, tmp_path / "bundle")

@@ -226,6 +226,12 @@ def run(args) -> int:
         raise ValueError(f"evaluation data {args.data} yielded no samples")
     metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
                         args.metrics)
+    bad = sorted(k for k, v in metrics.items()
+                 if isinstance(v, float) and not np.isfinite(v))
+    if bad:
+        raise ValueError(f"evaluation of {args.ckpt or args.method} on {args.data} gave "
+                         f"non-finite metrics ({', '.join(f'{k} {metrics[k]}' for k in bad)}): "
+                         f"no usable prediction; nothing was written")
     result = {"run": str(args.ckpt) if args.ckpt else None, "data": str(args.data),
               "method": args.method, "preset": name, "rig": args.rig or "dataset",
               "metric_set": args.metrics, "metric_definitions": METRIC_DEFINITIONS[args.metrics],

@@ -35,6 +35,17 @@ def flatten_variables(pure: dict) -> dict[str, np.ndarray]:
     return {_SEP.join(str(p) for p in k): np.asarray(v) for k, v in flat.items()}
 
 
+def require_finite(flat: dict, where) -> None:
+    """ValueError naming ``where`` and the first array of ``flat`` (name -> array) that holds
+    a NaN or an infinity: such weights would predict nothing but NaN."""
+    for key, value in flat.items():
+        arr = np.asarray(value)
+        if arr.dtype.kind in "fc" and not np.all(np.isfinite(arr)):
+            bad = int(arr.size - np.count_nonzero(np.isfinite(arr)))
+            raise ValueError(f"{where}: weights {key} hold {bad} non-finite value(s) of "
+                             f"{arr.size}; refusing a model that can only predict NaN")
+
+
 def is_bundle(path: str | os.PathLike) -> bool:
     return (Path(path) / WEIGHTS_FILE).is_file()
 
@@ -79,6 +90,7 @@ def load_bundle(path: str | os.PathLike):
         if stored[key].shape != ref.shape:
             raise ValueError(f"{path / WEIGHTS_FILE}: {key} has shape {stored[key].shape}, "
                              f"model {mc.name!r} expects {ref.shape}")
+    require_finite(stored, path / WEIGHTS_FILE)
     pure = traverse_util.unflatten_dict(
         {tuple(int(p) if p.isdigit() else p for p in k.split(_SEP)):
          jnp.asarray(v, expected[k].dtype) for k, v in stored.items()})

@@ -105,7 +105,11 @@ def load_for_inference(run_dir: str | os.PathLike, which: str = "best"):
         finally:
             manager.close()
         if out is not None:
-            state, _ = out
+            state, meta = out
+            from gijax.store.bundles import flatten_variables, require_finite
+
+            require_finite(flatten_variables(nnx.to_pure_dict(state["params"])),
+                           run_dir / sub / str(meta.get("step", "")))
             nnx.update(model, state["params"], state["rest"])
             model.eval()
             cand = np.asarray(run.candidates, np.float64)

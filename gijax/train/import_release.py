@@ -122,6 +122,11 @@ def import_release_weights(src: str | os.PathLike, preset: str, out: str | os.Pa
     state_dict = read_state_dict(src)
     model = create_model(config, seed)
     stored = load_state_dict(model, state_dict, input_order=input_order)
+    from flax import nnx
+
+    from gijax.store.bundles import flatten_variables, require_finite
+
+    require_finite(flatten_variables(nnx.to_pure_dict(nnx.state(model))), src)
     candidates = _candidates_for(config, stored)
     digest = hashlib.sha256(src.read_bytes()).hexdigest()
     provenance = {
