@@ -6,7 +6,9 @@ images RTSS matches on. Each design here spends the CPU differently (``gijax.nn.
 
 * ``G16VV-cpu``: the bundle's design (cost volume 16 x 64, output 32 x 128);
 * ``G16VV-cpu-fine``: the cost volume at the output's 32 x 128 (a cell per feature pixel);
-* ``G32VV-cpu``: 32 candidates instead of 16.
+* ``G32VV-cpu``: 32 candidates instead of 16;
+* ``G16VV-cpu-refine``: a guided refinement after the soft-argmax, at the output's resolution,
+  from the cameras' colours at the estimated distance (:mod:`gijax.nn.refine`).
 
 Every design trains from random weights (seed 0) on the bundle's data (the rig-and-lens
 mixture of ``experiments/bundle_model.py``, same augmentation, calibration errors and
@@ -45,7 +47,7 @@ from experiments.scales import SCALES, Scale, model_overrides  # noqa: E402
 from experiments.workfolder import gijax_command, metrics_records, train_run  # noqa: E402
 
 NAME = "design_comparison"
-DESIGNS = ("G16VV-cpu", "G16VV-cpu-fine", "G32VV-cpu")
+DESIGNS = ("G16VV-cpu", "G16VV-cpu-fine", "G32VV-cpu", "G16VV-cpu-refine")
 TEST = "paper-test1"
 
 

@@ -47,6 +47,7 @@ from gijax.geometry.panorama_frame import coverage_of, panorama_of
 from gijax.geometry.rig import Rig
 from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_cost_volume,
                       make_unet, regress)
+from gijax.nn.refine import GuidedRefinement, colour_guide
 from gijax.sweep.grid import rescale_pixels, sweep_grid
 from gijax.sweep.sample import sample_sweep
 from gijax.sweep.surrogate import resample_surrogates, surrogate_maps
@@ -68,6 +69,9 @@ class Grids:
       sweep_px: (N, D, h, w, 2) feature-map pixel (col, row) of every (candidate, cell) point.
       sweep_ok: (N, D, h, w) bool, the point is in front of and seen by that camera's lens.
       candidates: (D,) ascending distances, metres.
+      guide_px: (N, D, H, W, 2) surrogate pixel (col, row) of every (candidate, output pixel)
+        point, for a model with the guided refinement (``config.refine``); else None.
+      guide_ok: (N, D, H, W) bool, the point is in front of and seen by that camera's lens.
     """
 
     surrogate_px: Array
@@ -75,10 +79,13 @@ class Grids:
     sweep_px: Array
     sweep_ok: Array
     candidates: Array
+    guide_px: Array | None = None
+    guide_ok: Array | None = None
 
 
 jax.tree_util.register_dataclass(
-    Grids, data_fields=["surrogate_px", "surrogate_ok", "sweep_px", "sweep_ok", "candidates"],
+    Grids, data_fields=["surrogate_px", "surrogate_ok", "sweep_px", "sweep_ok", "candidates",
+                        "guide_px", "guide_ok"],
     meta_fields=[])
 
 
@@ -121,6 +128,16 @@ def sweep_grids(rig: Rig, candidates: Array, config: ModelConfig,
                       Panorama.hemisphere(*config.feature_hw))
 
 
+def guide_grids(rig: Rig, candidates: Array, config: ModelConfig,
+                pano: Panorama | None = None) -> tuple[Array, Array]:
+    """(N, D, H, W, 2) surrogate pixels and (N, D, H, W) validity of the sweep of ``rig`` at
+    ``candidates`` over the output panorama ``pano`` itself (default :func:`model_panorama`):
+    where the guided refinement reads the cameras' colours (:mod:`gijax.nn.refine`)."""
+    pano = model_panorama(config) if pano is None else pano
+    _check_output_panorama(config, pano)
+    return sweep_grid(rig, candidates, pano, Panorama.hemisphere(*config.surrogate_hw))
+
+
 def make_grids(rig: Rig, candidates: Array, config: ModelConfig,
                pano: Panorama | None = None) -> Grids:
     """Every grid the network needs for ``rig`` (at the model's image size, i.e. intrinsics
@@ -132,7 +149,8 @@ def make_grids(rig: Rig, candidates: Array, config: ModelConfig,
     candidates = jnp.asarray(candidates, rig.translations.dtype)
     sur_px, sur_ok = surrogate_maps(rig, Panorama.hemisphere(*config.surrogate_hw))
     px, ok = sweep_grids(rig, candidates, config, pano)
-    return Grids(sur_px, sur_ok, px, ok, candidates)
+    guide = guide_grids(rig, candidates, config, pano) if config.refine else (None, None)
+    return Grids(sur_px, sur_ok, px, ok, candidates, *guide)
 
 
 def coverage_note(config: ModelConfig, pano: Panorama) -> str | None:
@@ -205,12 +223,40 @@ def forward_surrogates(model: "OmniStereoNet", surrogates: Array, masks: Array,
     h, w = logits.shape[2:4]
     out = dict(regress(logits, grids.candidates.astype(dtype), (k * h, k * w)))
     out["logits"] = logits
+    if cfg.refine:
+        out.update(_refined(model, surrogates, masks, grids, out, dtype))
     needed = 2 if cfg.cost_volume == "variance" else n
     # Float reductions: TensorRT reduces float tensors only (no integer / boolean ReduceSum).
     seen_by = jnp.min(jnp.sum(cam_valid.astype(dtype), axis=1), axis=1)   # (B, h, w)
     cell_ok = seen_by >= needed
     out["valid"] = jnp.repeat(jnp.repeat(cell_ok, k, axis=1), k, axis=2)
     return out
+
+
+def _refined(model: "OmniStereoNet", surrogates: Array, masks: Array, grids: Grids, out: dict,
+             dtype) -> dict:
+    """The guided refinement's outputs: ``inv_distance`` and ``distance`` refined, the
+    soft-argmax estimate kept as ``inv_distance_coarse``."""
+    if grids.guide_px is None:
+        raise ValueError(f"model {model.config.name!r} refines its estimate and needs the guide "
+                         f"grids (gijax.model.guide_grids) in its Grids")
+    b = surrogates.shape[0]
+    # Colours and masks of all samples in one gather per camera, at the surrogate's size.
+    sur_masks = masks
+    if tuple(masks.shape[2:4]) != tuple(surrogates.shape[2:4]):
+        raise ValueError(f"the guided refinement reads masks at the surrogates' size "
+                         f"{tuple(surrogates.shape[2:4])}; found {tuple(masks.shape[2:4])}")
+    stacked = _fold_batch(jnp.concatenate([surrogates, sur_masks[..., None].astype(dtype)], -1))
+    sampled = _unfold_batch(sample_sweep(stacked, grids.guide_px.astype(dtype),
+                                         model.config.sweep_boundary), b)  # (B, N, D, H, W, 4)
+    seen = (grids.guide_ok[None] & (sampled[..., 3] > MASK_THRESHOLD)).astype(dtype)
+    prob = jax.lax.stop_gradient(out["prob"])
+    guide = colour_guide(sampled[..., :3], seen, prob)
+    cand = grids.candidates.astype(dtype)
+    coarse = jax.lax.stop_gradient(out["inv_distance"])
+    inv = model.refine(coarse, jax.lax.stop_gradient(out["entropy"]), guide,
+                       (1.0 / cand[-1], 1.0 / cand[0]))
+    return {"inv_distance": inv, "distance": 1.0 / inv, "inv_distance_coarse": out["inv_distance"]}
 
 
 def _fold_batch(x: Array) -> Array:
@@ -264,6 +310,7 @@ class OmniStereoNet(nnx.Module):
         self.features = FeatureExtractor(config, rngs)
         self.cost_volume = make_cost_volume(config, rngs)
         self.unet = make_unet(config, rngs)
+        self.refine = GuidedRefinement(config.num_candidates, rngs) if config.refine else None
 
     def __call__(self, surrogates: Array, masks: Array, rig: Rig, candidates: Array,
                  pano: Panorama | None = None) -> dict:
@@ -277,7 +324,9 @@ class OmniStereoNet(nnx.Module):
                              f"{found[0] if found else 'no'} surrogate images were given")
         candidates = jnp.asarray(candidates, surrogates.dtype)
         px, ok = sweep_grids(rig, candidates, self.config, pano)
-        grids = Grids(None, None, px, ok, candidates)
+        guide = (guide_grids(rig, candidates, self.config, pano) if self.config.refine
+                 else (None, None))
+        grids = Grids(None, None, px, ok, candidates, *guide)
         return forward_surrogates(self, surrogates, masks, grids)
 
 

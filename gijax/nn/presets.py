@@ -14,7 +14,8 @@ G16VV          16 GI       volume  spherical  variance 16  in16 / f96   36.5 M
 =============  ==========  ======  =========  ===========  ===========  =======================
 
 CPU-scale designs of gijax's own (options off in the paper presets): ``G16VV-cpu-fine`` (the cost
-volume at the output's 32 x 128, ``output_stride=1``) and ``G32VV-cpu`` (32 candidates).
+volume at the output's 32 x 128, ``output_stride=1``), ``G32VV-cpu`` (32 candidates) and
+``G16VV-cpu-refine`` (a guided refinement at the output's resolution, ``refine=True``).
 
 The ``-cpu`` presets keep every structural choice (candidate count and kind, loss, feature kind,
 cost-volume kind, camera count, mask augmentation) and shrink the sizes so that a model trains on
@@ -55,6 +56,9 @@ class ModelConfig:
     ``output_stride`` is ``output_hw / cost_hw``: 2 in the paper (the logits are upsampled x2
     before the softmax); 1 puts the cost volume at the output's resolution (gijax's finer
     CPU-scale design, ``G16VV-cpu-fine``: a cell per feature pixel, sharper depth edges).
+    ``refine`` adds gijax's guided refinement after the soft-argmax (:mod:`gijax.nn.refine`:
+    a small 2-D network at the output's resolution, guided by the cameras' colours at the
+    estimated distance; ``G16VV-cpu-refine``).
 
     Two choices keep the release's behaviour by default and offer gijax's alternative:
 
@@ -97,6 +101,7 @@ class ModelConfig:
     conv3d: str = "auto"
     panorama: str = "hemisphere"
     output_stride: int = 2
+    refine: bool = False
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -218,6 +223,7 @@ _G16VV_CPU = PRESETS["G16VV-cpu"]
 _DESIGNS = [
     dataclasses.replace(_G16VV_CPU, name="G16VV-cpu-fine", cost_hw=(32, 128), output_stride=1),
     dataclasses.replace(_G16VV_CPU, name="G32VV-cpu", num_candidates=32),
+    dataclasses.replace(_G16VV_CPU, name="G16VV-cpu-refine", refine=True),
 ]
 PRESETS.update({c.name: c for c in _DESIGNS})
 

@@ -113,9 +113,14 @@ def smooth_l1_loss(inv_pred: Array, distance: Array, valid: Array, candidates: A
 
 
 def model_loss(kind: str, outputs: dict, distance: Array, valid: Array, candidates: Array) -> Array:
-    """The loss a model configuration asks for: ``'volume'`` or ``'smooth_l1'``."""
+    """The loss a model configuration asks for: ``'volume'`` or ``'smooth_l1'``. A model with
+    the guided refinement (its outputs hold ``inv_distance_coarse``) adds the smooth L1 of its
+    refined ``inv_distance`` to the volume loss (the smooth-L1 loss is on it already)."""
     if kind == "volume":
-        return volume_loss(outputs["prob"], distance, valid, candidates)
+        loss = volume_loss(outputs["prob"], distance, valid, candidates)
+        if "inv_distance_coarse" in outputs:
+            loss = loss + smooth_l1_loss(outputs["inv_distance"], distance, valid, candidates)
+        return loss
     if kind == "smooth_l1":
         return smooth_l1_loss(outputs["inv_distance"], distance, valid, candidates)
     raise ValueError(f"unknown loss {kind!r}; expected 'volume' or 'smooth_l1'")
