@@ -45,7 +45,7 @@ from gijax.geometry import panorama_frame
 from gijax.geometry.panorama import Panorama
 from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
 from gijax.sweep import grid, sample, surrogate
-from gijax.nn import cost_volume, layers, regressor, spherical, upsample
+from gijax.nn import cost_volume, layers, refine, regressor, spherical, upsample
 from gijax.train import losses, metrics
 
 # gijax.design re-exports the function `objective` under the submodule's name.
@@ -1242,6 +1242,16 @@ def _kernel_init(seed):
 def _regress(seed):
     logits = np.random.default_rng(seed).normal(size=(1, 4, 2, 3))
     return jnp.asarray(logits, F64), candidates(seed)
+
+
+@case(refine.colour_guide, diff=(0, 2))
+def _colour_guide(seed):
+    rng = np.random.default_rng(seed)
+    colour = rng.uniform(size=(1, 3, 4, 2, 3, 3))
+    seen = np.ones((1, 3, 4, 2, 3))
+    seen[:, 2, ::2] = 0.0                 # a camera that misses every other candidate
+    prob = rng.dirichlet(np.ones(4), size=(1, 2, 3)).transpose(0, 3, 1, 2)
+    return jnp.asarray(colour, F64), jnp.asarray(seen, F64), jnp.asarray(prob, F64)
 
 
 def _taps_tables():
