@@ -219,6 +219,34 @@ def test_manifest_errors(dataset, tmp_path):
         DatasetReader(root)
 
 
+def test_names_that_lead_outside_the_dataset_are_refused(dataset, tmp_path):
+    """A file list, a manifest entry or a mask name may only point inside the dataset folder:
+    ``../`` out of it or an absolute path is refused naming the document, line and column,
+    and the file outside is never opened."""
+    root = _copy(dataset, tmp_path)
+    outside = tmp_path / "secret.png"
+    outside.write_bytes(b"not a dataset file")
+    csv_path = root / "traj_0000/files.csv"
+    lines = csv_path.read_text().splitlines()
+    cells = lines[1].split(",")
+    header = lines[0].split(",")
+    col = header.index("cam0_rgb")
+    for bad, match in (("../../secret.png", "leads outside the dataset folder"),
+                       (str(outside), "is an absolute path")):
+        cells[col] = bad
+        csv_path.write_text("\n".join([lines[0], ",".join(cells)] + lines[2:]) + "\n")
+        with pytest.raises(ValueError, match=rf"column 'cam0_rgb', .*files\.csv line 2: .*{match}"):
+            DatasetReader(root)
+    csv_path.write_text("\n".join(lines) + "\n")
+    manifest = root / "manifest.json"
+    doc = json.loads(manifest.read_text())
+    doc["trajectories"][0]["file_list"] = "../" + root.name + "/../secret.png"
+    manifest.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"trajectory 'traj_0000' field 'file_list': .* leads "
+                                         r"outside"):
+        DatasetReader(root)
+
+
 def test_csv_errors(dataset, tmp_path):
     root = _copy(dataset, tmp_path)
     csv_path = root / "traj_0000/files.csv"

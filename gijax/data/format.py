@@ -56,6 +56,23 @@ CAMERA_KINDS = ("rgb", "distance", "mask")
 
 # ---------------------------------------------------------------------------- JSON helpers
 
+def inside(root: Path, base: Path, name: str, where: str) -> Path:
+    """``base / name`` when it names a file inside the dataset folder ``root``; ValueError
+    naming ``where`` otherwise (an absolute path, or ``..`` leading out of the folder): a
+    dataset's documents may only point at its own files."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{where}: expected a file name inside the dataset, found {name!r}")
+    if os.path.isabs(name):
+        raise ValueError(f"{where}: {name!r} is an absolute path; a dataset names its files "
+                         f"relative to its folder")
+    path = Path(base) / name
+    top = Path(root).resolve()
+    full = path.resolve()
+    if full != top and top not in full.parents:
+        raise ValueError(f"{where}: {name!r} leads outside the dataset folder {root}")
+    return path
+
+
 def load_json(path: str | os.PathLike, what: str) -> dict:
     """Read a JSON object; FileNotFoundError / ValueError name the file and the position."""
     path = Path(path)
@@ -204,7 +221,9 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
         mask_file = doc.get("mask")
         mask = None
         if mask_file:
-            mask = jnp.asarray(pngio.read_mask(root / mask_file, (cam.height, cam.width),
+            mask = jnp.asarray(pngio.read_mask(inside(root, root, mask_file,
+                                                      f"{where} field 'mask'"),
+                                               (cam.height, cam.width),
                                                f"rig mask of camera {name!r}"), jnp.float32)
         cams.append(cam)
         rots.append(rot)

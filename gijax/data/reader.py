@@ -78,8 +78,12 @@ class DatasetReader(RowReader):
         if not self.root.is_dir():
             raise FileNotFoundError(f"dataset folder {self.root} does not exist")
         self.manifest = fmt.read_manifest(self.root)
-        self.metadata = fmt.load_json(self.root / self.manifest["metadata"], "metadata")
-        self.frame_graph = fmt.load_json(self.root / self.manifest["frame_graph"], "frame graph")
+        where = f"{self.root / fmt.MANIFEST}"
+        self.metadata = fmt.load_json(fmt.inside(self.root, self.root, self.manifest["metadata"],
+                                                 f"{where} field 'metadata'"), "metadata")
+        self.frame_graph = fmt.load_json(
+            fmt.inside(self.root, self.root, self.manifest["frame_graph"],
+                       f"{where} field 'frame_graph'"), "frame graph")
         self.rig = fmt.rig_from_docs(self.root, self.metadata, self.frame_graph)
         self.pano = fmt.pano_from_metadata(self.metadata, self.root / fmt.METADATA)
         self.names = list(self.rig.names)
@@ -92,7 +96,8 @@ class DatasetReader(RowReader):
         self.skipped: list[Skipped] = []
         self._rows: list[tuple[str, Path, dict]] = []
         for t in self.manifest["trajectories"]:
-            csv_path = self.root / t["file_list"]
+            csv_path = fmt.inside(self.root, self.root, t["file_list"],
+                                  f"{where} trajectory {t.get('name')!r} field 'file_list'")
             for row in fmt.read_file_list(csv_path, self.names):
                 self._rows.append((t["name"], csv_path, row))
         self.requested = fmt.requested_samples(self.manifest, self.root / fmt.MANIFEST)
@@ -142,8 +147,8 @@ class DatasetReader(RowReader):
     def _files(self, entry) -> dict[str, Path]:
         traj, csv_path, row = entry
         folder = csv_path.parent
-        return {k: folder / v for k, v in row.items()
-                if k not in ("frame", "seed", "_line") and v}
+        return {k: fmt.inside(self.root, folder, v, f"column {k!r}, {csv_path} line {row['_line']}")
+                for k, v in row.items() if k not in ("frame", "seed", "_line") and v}
 
     def _check_row(self, entry, full: bool) -> None:
         if full:
