@@ -572,3 +572,20 @@ def test_a_run_whose_folder_is_lost_resumes_from_its_pack_with_the_same_losses(t
                                          r"differs from this run's in unet_base"):
         Trainer(_config(model_overrides=wider, steps=4, ckpt_every=2, pack=str(other)),
                 tmp_path / "w", tiny_rig(), stream, None, progress=False)
+
+
+def test_a_folder_that_is_not_a_run_folder_is_never_trained_into(tmp_path):
+    """``--out`` naming a dataset (or any folder with files and no ``config.json``) is refused
+    in one line before anything is written; its files stay as they were."""
+    from gijax.train.sources import array_stream_factory
+    from gijax.train.trainer import Trainer
+
+    folder = tmp_path / "dataset"
+    folder.mkdir()
+    (folder / "manifest.json").write_text("{}")
+    arr = tiny_arrays(2)
+    with pytest.raises(ValueError, match=r"dataset: exists and is not a gijax run folder \(it "
+                                         r"holds manifest.json and no config.json\)"):
+        Trainer(_config(steps=1), folder, tiny_rig(), array_stream_factory(arr, 2, 0), None,
+                progress=False)
+    assert sorted(p.name for p in folder.iterdir()) == ["manifest.json"]

@@ -99,6 +99,9 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
     from gijax.train.trainer import Trainer
 
     check_output_dir(out)
+    from gijax.train.trainer import check_run_folder
+
+    check_run_folder(Path(out))          # before the data are read: never into another folder
     mc = config.model_config()
 
     def opened(path, what):

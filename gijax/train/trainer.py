@@ -138,6 +138,7 @@ class Trainer:
         # A bad candidate list is found before the run folder exists, so it leaves none behind.
         if not (self.run_dir / CONFIG_FILE).exists():
             training_candidates(config, rig)
+        check_run_folder(self.run_dir)
         fresh = not self.run_dir.exists()
         self.run_dir.mkdir(parents=True, exist_ok=True)
         # One writer per run folder; process 0 holds the lock for the processes of its run.
@@ -518,6 +519,21 @@ class Trainer:
         self.store.close()
         if self._lock is not None:
             self._lock.release()
+
+
+def check_run_folder(run_dir: Path) -> None:
+    """ValueError, before anything is written, when ``run_dir`` exists and holds files but is
+    not a run folder (no ``config.json``): a dataset or any other folder is never trained
+    into."""
+    from gijax.io.lock import LOCK_FILE
+
+    if not run_dir.is_dir() or (run_dir / CONFIG_FILE).exists():
+        return
+    others = sorted(p.name for p in run_dir.iterdir() if p.name != LOCK_FILE)
+    if others:
+        raise ValueError(f"run folder {run_dir}: exists and is not a gijax run folder (it holds "
+                         f"{', '.join(others[:3])}{', ...' if len(others) > 3 else ''} and no "
+                         f"{CONFIG_FILE}); choose a new --out")
 
 
 def drop_logs_after(run_dir, step: int) -> None:
