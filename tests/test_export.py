@@ -352,6 +352,13 @@ def test_cli_export_preset_validates_and_reports(tmp_path, capsys):
     assert _session(out).get_inputs()[0].shape == [2, 3, 128, 128, 3]
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
     assert "UNTRAINED" in meta["gijax.source"]
+    # An --out that is a folder is refused in one line naming it, before the export runs.
+    code = main(["export", "--preset", str(cfg_file), "--rig", "paper-train", "--out",
+                 str(tmp_path), "--batch", "2"])
+    captured = capsys.readouterr()
+    err = [ln for ln in captured.err.splitlines() if ln.strip()]
+    assert code != 0 and len(err) == 1 and f"--out {tmp_path} is a folder" in err[0], err
+    assert "exporting" not in captured.out
 
 
 def test_predict_cli_onnx_backend_matches_the_predictor(setup, tmp_path):

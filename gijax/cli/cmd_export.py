@@ -54,8 +54,10 @@ def run(args) -> int:
     from gijax.candidates.spec import resolve_candidates
     from gijax.export.onnx_export import export_onnx, validate_export
     from gijax.export.trt_compat import check_model
+    from gijax.io.paths import check_output_file
     from gijax.io.rigfile import load_rig
 
+    check_output_file(args.out)          # a folder or a file under a file fails before the export
     rig = load_rig(args.rig)
     from gijax.store import model_or_untrained
 
