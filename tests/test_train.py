@@ -182,6 +182,8 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
            str(tmp_path / "run3")], "no samples")
     fails(["eval", "--ckpt", str(run), "--data", str(tmp_path / "val"), "--candidates", "x.json"],
           "x.json")
+    fails(["eval", "--ckpt", str(run), "--data", str(tmp_path / "val"), "--rig", "paper-test3"],
+          "--rig paper-test3 has 4 camera(s)", "holds images of 3")
 
 
 @pytest.mark.usefixtures("quick_compiles_here")

@@ -184,6 +184,10 @@ def run(args) -> int:
 
         # The labels fix the panorama frame: the dataset's, whatever the rig file says.
         rig = load_rig(args.rig).replace(panorama_rotation=reader.rig.panorama_rotation)
+        if rig.num_cameras != reader.rig.num_cameras:
+            raise ValueError(f"--rig {args.rig} has {rig.num_cameras} camera(s) but dataset "
+                             f"{args.data} holds images of {reader.rig.num_cameras} "
+                             f"({', '.join(reader.rig.names)}); give the dataset's rig")
     else:
         rig = reader.rig
     if args.method == "net":
