@@ -124,6 +124,14 @@ def test_non_finite_weights_are_refused_naming_the_array(tmp_path):
         load_bundle(out)
 
 
+def test_a_bundle_without_its_weights_is_called_a_damaged_bundle(tmp_path):
+    cfg, config_file = _run_config(tmp_path)
+    out = save_bundle(create_model(cfg.model_config(), seed=3), config_file, tmp_path / "b")
+    (out / WEIGHTS_FILE).unlink()
+    with pytest.raises(FileNotFoundError, match=r"bundle .*b lacks its weights.npz"):
+        load_model(out)
+
+
 def test_truncated_weights_name_the_file(tmp_path):
     cfg, config_file = _run_config(tmp_path)
     out = save_bundle(create_model(cfg.model_config()), config_file, tmp_path / "bundle")

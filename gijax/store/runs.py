@@ -119,5 +119,10 @@ def load_for_inference(run_dir: str | os.PathLike, which: str = "best"):
                 cand = np.asarray(candidates_from_logits(
                     state["cand_logits"], cand[0], cand[-1]), np.float64)
             return model, run.model, cand
+    from gijax.store.bundles import PROVENANCE_FILE, WEIGHTS_FILE
+
+    if (run_dir / PROVENANCE_FILE).is_file():     # what a bundle holds beside its weights
+        raise FileNotFoundError(f"bundle {run_dir} lacks its {WEIGHTS_FILE} (a damaged or partly "
+                                f"copied bundle)")
     raise FileNotFoundError(f"run folder {run_dir} holds no checkpoint yet (the run has not "
                             f"saved trained weights)")
