@@ -262,6 +262,15 @@ def test_bad_arguments(rigs, kwargs, field, kind):
         candidates_for(kind, args["n"], rigs["paper-test2"], args["d_min"], args["d_max"])
 
 
+@pytest.mark.parametrize("field", ["translations", "rotations", "reference"])
+def test_non_finite_calibration_is_an_error_not_nan_candidates(rigs, field):
+    rig = rigs["paper-test2"]
+    bad = np.array(getattr(rig, field), np.float64)
+    bad.flat[1] = np.nan if field != "reference" else np.inf
+    with pytest.raises(ValueError, match="NaN or infinite"):
+        rig_gi_candidates(rig.replace(**{field: jnp.asarray(bad, jnp.float32)}), 16)
+
+
 def test_rig_without_overlap(rigs):
     # paper-test2 with 80-degree lenses looking up, down and sideways: no common ray.
     rig = rigs["paper-test2"]

@@ -324,6 +324,19 @@ def require_coverage(coverage, rig: Rig, d_min, d_max) -> None:
             "centres", inputs=(rig, d_min, d_max))
 
 
+def require_finite_rig(rig: Rig) -> None:
+    """ValueError (checkify under a trace) when a pose, the reference point or an intrinsic of
+    ``rig`` is NaN or infinite: the candidates would come back as NaN."""
+    leaves = [x for x in jax.tree_util.tree_leaves((rig.rotations, rig.translations,
+                                                    rig.reference, rig.cameras))
+              if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)]
+    ok = jnp.all(jnp.asarray([jnp.all(jnp.isfinite(x)) for x in leaves]))
+    require(ok, "rig: a camera pose, the reference point or an intrinsic parameter is NaN or "
+            "infinite (cameras " + ", ".join(rig.names).replace("{", "{{").replace("}", "}}")
+            + "); GI candidates need a finite "
+            "calibration", inputs=(rig,))
+
+
 def rig_gi_candidates(rig: Rig, n: int, d_min=0.5, d_max=100.0, *, pano: Panorama = DEFAULT_PANO,
                       measure: str = "pixels", samples: int = 4, rays=None) -> Array:
     """Rig-aware GI candidates: (n,) ascending metres with equal mean feature displacement steps.
@@ -347,6 +360,7 @@ def rig_gi_candidates(rig: Rig, n: int, d_min=0.5, d_max=100.0, *, pano: Panoram
     _check_options(pano, measure, samples)
     _check_rays(rays)
     rig = as_float_rig(rig)
+    require_finite_rig(rig)
     d, coverage = _rig_gi_jit(rig, d_min, d_max, rays, n=n, pano=pano, measure=measure,
                               samples=samples)
     require_coverage(coverage, rig, d_min, d_max)
