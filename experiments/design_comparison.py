@@ -92,7 +92,7 @@ def overrides(scale: Scale, design: str) -> dict:
 
 # --------------------------------------------------------------------------- budget
 
-def measure_budget(scale: Scale, budget: Budget, path: Path) -> dict:
+def measure_budget(scale: Scale, budget: Budget, path: Path, measure: bool = True) -> dict:
     """Seconds per step of every design and the step counts they give, kept in ``path``.
 
     Machines differ (this project's 2-core machines have run 2.4x apart), so a design's cost is
@@ -100,7 +100,7 @@ def measure_budget(scale: Scale, budget: Budget, path: Path) -> dict:
     measured side by side with it in alternating rounds, and its step count is the budget
     over that ratio times the reference's seconds per step of the first measurement. A design
     added later is measured beside the reference on whatever machine runs then, and the
-    designs already measured keep their step counts.
+    designs already measured keep their step counts. ``measure=False`` only reads ``path``.
     """
     from gijax.bench.machine import invocation
     from gijax.bench.train_step import alternating_step_seconds, train_step_case
@@ -112,7 +112,7 @@ def measure_budget(scale: Scale, budget: Budget, path: Path) -> dict:
         doc = {"key": key, "reference_s_per_step": None, "ratio": {}, "steps": {},
                "s_per_step": {}, "measurements": []}
     missing = [d for d in DESIGNS if d not in doc["ratio"]]
-    if not missing:
+    if not missing or not measure:
         log(f"budget: the step counts of {path} ({len(doc['measurements'])} measurement(s))")
         return doc
     timed = [DESIGNS[0]] + [d for d in missing if d != DESIGNS[0]]
@@ -197,9 +197,9 @@ def train_designs(work: Path, scale: Scale, budget: Budget, measured: dict, seed
 # --------------------------------------------------------------------------- report
 
 def curves(work: Path, measured: dict) -> dict:
-    """Per design: [(training seconds, step, validation MAE)] from its log."""
+    """Per measured design: [(training seconds, step, validation MAE)] from its log."""
     out = {}
-    for design in DESIGNS:
+    for design in (d for d in DESIGNS if d in measured["s_per_step"]):
         run = work / "runs" / f"design-{design}"
         per = measured["s_per_step"][design]
         out[design] = [(r["step"] * per, r["step"], r["mae"]) for r in metrics_records(run)
@@ -242,6 +242,10 @@ def table(measured: dict, curve: dict, tests: dict, trained: dict) -> str:
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for d in DESIGNS:
         cfg = get_preset(d)
+        if d not in curve:
+            lines.append(f"| `{d}` | {cfg.num_candidates} x {cfg.cost_hw[0]} x {cfg.cost_hw[1]} "
+                         f"| {parameter_count(cfg) / 1e6:.2f} M | not timed yet | | | | | |")
+            continue
         pts = curve[d]
         best = min((p[2] for p in pts), default=None)
         last = pts[-1] if pts else None
@@ -304,11 +308,11 @@ def main(argv=None) -> int:
 
     data.append(ensure_dataset(work, scale, "val"))
     durations = {"data_s": time.perf_counter() - t0}
-    measured = measure_budget(scale, budget, out / "budget.json")
+    measured = measure_budget(scale, budget, out / "budget.json", measure=not args.report_only)
     t0 = time.perf_counter()
     if args.report_only:
         records = {d: {"run": str(work / "runs" / f"design-{design_preset(scale, d)}"),
-                       "finished": False} for d in DESIGNS}
+                       "finished": False} for d in DESIGNS if d in measured["steps"]}
     else:
         records = train_designs(work, scale, budget, measured, args.seed, out)
     durations["train_s"] = time.perf_counter() - t0
