@@ -324,7 +324,7 @@ def require_coverage(coverage, rig: Rig, d_min, d_max) -> None:
             "centres", inputs=(rig, d_min, d_max))
 
 
-def require_finite_rig(rig: Rig) -> None:
+def _require_finite_rig(rig: Rig) -> None:
     """ValueError (checkify under a trace) when a pose, the reference point or an intrinsic of
     ``rig`` is NaN or infinite: the candidates would come back as NaN."""
     leaves = [x for x in jax.tree_util.tree_leaves((rig.rotations, rig.translations,
@@ -360,7 +360,7 @@ def rig_gi_candidates(rig: Rig, n: int, d_min=0.5, d_max=100.0, *, pano: Panoram
     _check_options(pano, measure, samples)
     _check_rays(rays)
     rig = as_float_rig(rig)
-    require_finite_rig(rig)
+    _require_finite_rig(rig)
     d, coverage = _rig_gi_jit(rig, d_min, d_max, rays, n=n, pano=pano, measure=measure,
                               samples=samples)
     require_coverage(coverage, rig, d_min, d_max)
