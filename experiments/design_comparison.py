@@ -263,10 +263,10 @@ def evaluate_finished(work: Path, scale: Scale, records: dict) -> dict:
     """paper-test1 MAE of each finished design and RS-E32's, from the cached evaluations."""
     from experiments.workfolder import ensure_dataset
 
-    ensure_dataset(work, scale, TEST)
     done = {d: Path(r["run"]) for d, r in records.items() if r.get("finished", True)}
     if not done:
         return {}
+    ensure_dataset(work, scale, TEST)
     rows, _ = BM.evaluate(work, scale, done, tests=(TEST,), lists=("train",))
     rtss = BM.mae_of(rows, TEST, BM.RTSS, "ev")
     return {d: {"model": BM.mae_of(rows, TEST, d, "train"), "rtss": rtss} for d in done}
@@ -333,7 +333,10 @@ def main(argv=None) -> int:
         text = (f"{state}Each design trains from random weights on the bundle's mixture for "
                 f"{budget.seconds / 60:.0f} minutes of training (its seconds per step at batch "
                 f"{budget.batch} relative to `{DESIGNS[0]}`'s, measured side by side in alternating "
-                f"rounds, times its steps; `budget.json` holds the measurements).\n\n"
+                f"rounds, times its steps; `budget.json` holds the measurements). The runs "
+                f"are trained by `python experiments/design_comparison.py --scale "
+                f"{scale.name}` in pieces; each piece's command, revision and host are in its "
+                f"pack's `metrics.jsonl` (`experiments/packs/`).\n\n"
                 f"{body}\n\n![validation MAE against training time]({figure.name})\n\n"
                 f"{provenance_markdown(prov)}")
         publish_section(results, NAME, text, [figure])
