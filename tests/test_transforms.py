@@ -381,6 +381,19 @@ for _model in ("ds", "eucm", "kb", "equidistant"):
         functools.partial(lambda m, seed: (lens(seed, m),), _model))
 
 
+def _field_mask():
+    """A mask whose widest pixel is unique for every ``_off_centre`` lens (no kink of the max)."""
+    mask = np.zeros((SIZE, SIZE), np.float64)
+    mask[2:12, 3:14] = 1.0
+    mask[12, 13] = 1.0
+    return jnp.asarray(mask)
+
+
+for _model in ("ds", "eucm", "kb", "equidistant"):
+    case(field_of_view.mask_field_of_view, diff=(0,), label=f"mask_field_of_view[{_model}]")(
+        functools.partial(lambda m, seed: (*_off_centre(seed, m), _field_mask()), _model))
+
+
 @case(cameras.make_camera, call=lambda p: cameras.make_camera("ds", p, SIZE, SIZE, 195.0,
                                                              dtype=F64), diff=(0,))
 def _make_camera(seed):

@@ -195,6 +195,25 @@ def field_of_view(cam) -> FieldOfView:
 _field_of_view_jit = jax.jit(field_of_view)
 
 
+def mask_field_of_view(cam, mask: Array) -> Array:
+    """The widest angle a valid pixel of ``mask`` sees: full cone angle in radians.
+
+    ``mask`` is (H, W) at the camera's resolution, nonzero = valid; pixel centres sit at
+    integer coordinates (the image's sides at -0.5 and W - 0.5, as in :func:`field_of_view`).
+    A calibration import leaves ``cam.fov`` at 360 degrees, so for a real lens this is the
+    field of view its mask shows; it is bounded by the lens model's limit and by ``cam.fov``,
+    and 0 for an empty mask.
+    """
+    height, width = mask.shape
+    dtype = jnp.result_type(cam.fx)
+    rows, cols = jnp.meshgrid(jnp.arange(height, dtype=dtype), jnp.arange(width, dtype=dtype),
+                              indexing="ij")
+    half_model = _HALF_ANGLE[type(cam)](cam)
+    theta = _edge_half_angles(cam, jnp.stack([cols, rows], axis=-1), half_model)
+    widest = jnp.max(jnp.where(jnp.asarray(mask) > 0, theta, 0.0))
+    return 2.0 * jnp.minimum(widest, 0.5 * cam.fov)
+
+
 def describe_field_of_view(cam) -> str:
     """One line for reports, in degrees: what the image sees, the model's limit, the fully held
     cone, and ``cam.fov`` where it is set below 360 (text from concrete values, not traced)."""
@@ -209,4 +228,4 @@ def describe_field_of_view(cam) -> str:
 
 
 __all__ = ["FieldOfView", "KB_BISECTIONS", "KB_GRID", "describe_field_of_view", "field_of_view",
-           "model_limit"]
+           "mask_field_of_view", "model_limit"]
