@@ -176,3 +176,24 @@ def test_unmasked_warning(tmp_path):
         assert warn_if_unmasked(rig, str(calib), other_masks=True) == ()
         builtin = load_rig("paper-train")
         assert warn_if_unmasked(builtin.replace(masks=(None,) * 3), "paper-train") == ()
+
+
+def test_a_warning_on_the_command_line_is_one_line_without_its_source(tmp_path, monkeypatch,
+                                                                     capsys):
+    import gijax.cli.cmd_rig as cmd_rig
+
+    calib = _basalt(tmp_path)
+
+    def show(args):
+        warn_if_unmasked(load_rig(args.rig), args.rig)
+        return 0
+
+    monkeypatch.setattr(cmd_rig, "_show", show)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        assert main(["rig", "show", str(calib)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"gijax rig: warning: {calib}: cameras cam0, cam1, cam2, cam3 "
+                             "have no mask")
+    assert "masks.py" not in err[0] and "UnmaskedRigWarning" not in err[0]

@@ -10,6 +10,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import warnings
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,6 +34,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _warning_printer(command: str):
+    """``warnings.showwarning`` for the command line: ``gijax CMD: warning: ...`` without the
+    source file and line that Python's default adds (they mean nothing to a user)."""
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"gijax {command}: warning: {message}", file=file or sys.stderr)
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -44,7 +55,9 @@ def main(argv: list[str] | None = None) -> int:
     from gijax.io.lock import FolderLockedError
 
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_printer(args.command)
+            return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, FolderLockedError) as exc:
         print(f"gijax {args.command}: error: {exc}", file=sys.stderr)
         return 1
