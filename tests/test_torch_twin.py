@@ -41,6 +41,15 @@ def rel_err(found, expected) -> float:
                  / np.max(np.abs(expected)))
 
 
+def test_twin_constants_are_gijax_constants():
+    from gijax.bench import torch_twin as T
+    from gijax.nn import layers, release_weights
+    from gijax.train import losses
+
+    assert T.LEAKY_SLOPE == layers.LEAKY_SLOPE and T.RELEASE_BF == release_weights.RELEASE_BF
+    assert T.PROB_FLOOR == losses._PROB_FLOOR and T.RELEASE_BF == losses.RELEASE_INV_SCALE
+
+
 @pytest.mark.skipif(not (FIXTURES / "g16vv_small.npz").is_file(),
                     reason=f"release fixtures not found in {FIXTURES}")
 @pytest.mark.parametrize("name", ["g16v_released", "concat_small", "g16vv_small"])
@@ -209,3 +218,20 @@ def test_twin_training_step_matches_gijax_train_step():
     assert abs(norm1 - float(info1["grad_norm"])) < 1e-4 * norm1
     assert abs(loss2 - float(info2["loss"])) < TOL * loss2
     assert loss2 != loss1   # the step moved the weights
+
+
+def test_stand_in_samples_the_taps_deform_conv2d_samples():
+    """Without torchvision the spherical layer falls back to grid_sample; on the release's
+    offsets (taps off the map at the pole and the seam included) it equals torchvision's
+    deform_conv2d."""
+    pytest.importorskip("torchvision", reason="torchvision is not installed: nothing to compare")
+    from torchvision.ops import deform_conv2d
+
+    from gijax.bench.torch_twin import FixedOffsetConv
+    from gijax.nn.spherical import release_offsets
+
+    torch.manual_seed(0)
+    conv = FixedOffsetConv(4, 5, release_offsets(8, 32))
+    x = torch.randn(2, 4, 8, 32)
+    expected = deform_conv2d(x, conv.offset.expand(2, -1, -1, -1), conv.weight, padding=1)
+    assert rel_err(conv._stand_in(x).detach(), expected.detach().numpy()) < TOL

@@ -18,8 +18,9 @@ when torchvision is installed; otherwise a bilinear stand-in samples the same ta
 says which). Only the release's choices are built: ``spherical_taps='release'``,
 ``sweep_boundary='zeros'``, no guided refinement.
 
-This module imports torch, numpy and :mod:`gijax.bench.torch_peer` only (not JAX): the benchmark runs it in a process of its
-own whose memory is the twin's alone. Nothing else in gijax imports it.
+This module imports torch, numpy and :mod:`gijax.bench.torch_peer` only (not JAX): the
+benchmark runs it in a process of its own whose memory is the twin's alone. Nothing else in
+gijax imports it.
 """
 
 from __future__ import annotations
@@ -42,10 +43,12 @@ SPHERICAL_BACKEND = ("torchvision.ops.deform_conv2d" if deform_conv2d is not Non
                      else "grid_sample stand-in (torchvision not installed)")
 
 # The release's constants, as gijax holds them (gijax.nn.layers, gijax.nn.release_weights,
-# gijax.train.losses); repeated here because this module must not import JAX.
+# gijax.train.losses); repeated here because this module must not import JAX
+# (tests/test_torch_twin.py checks that they agree).
 LEAKY_SLOPE = 0.01
 RELEASE_BF = 96.0
-_PROB_FLOOR = 1e-30
+PROB_FLOOR = 1e-30
+
 
 class ConvBN(nn.Module):
     """conv (no bias, padding k // 2) -> BatchNorm -> optional LeakyReLU, 2-D or 3-D, under
@@ -328,8 +331,8 @@ def volume_loss(prob, distance, valid, inv_candidates):
     usable pixels and candidates (as :func:`gijax.train.losses.volume_loss`)."""
     t = two_hot_target(distance, inv_candidates)
     m = _label_mask(distance, valid)[:, None]
-    bce = -(t * torch.log(prob.clamp(min=_PROB_FLOOR))
-            + (1.0 - t) * torch.log((1.0 - prob).clamp(min=_PROB_FLOOR)))
+    bce = -(t * torch.log(prob.clamp(min=PROB_FLOOR))
+            + (1.0 - t) * torch.log((1.0 - prob).clamp(min=PROB_FLOOR)))
     count = m.sum() * prob.shape[1]
     return (bce * m).sum() / count.clamp(min=1.0)
 
