@@ -19,8 +19,9 @@ from gijax.bench.machine import load_average, machine_info
 from gijax.bench.report import markdown_table, text_table, write_json, write_text
 
 PAPER_PRESETS = ("E8", "G8", "E16", "G16", "G16V", "G16V-released", "G16VV")
-# The distinct -cpu networks and losses (E8 / G8 and E16 / G16 differ only in their
-# candidates), timed against the PyTorch twin by the torch-peer case.
+# The distinct -cpu networks and losses, timed against the PyTorch twin by the torch-peer case:
+# E8 / G8 and E16 / G16 differ only in their candidates; G16 and G16V share a network but not
+# a loss (smooth L1, volume).
 TORCH_PEER_PRESETS = ("G8-cpu", "G16-cpu", "G16V-cpu", "G16V-released-cpu", "G16VV-cpu")
 
 
