@@ -405,6 +405,6 @@ def train_step(twin: TorchTwin, inputs: Mapping[str, np.ndarray], lr: float = 1e
         norm = torch.linalg.vector_norm(
             torch.stack([torch.linalg.vector_norm(p.grad) for p in params]))
         opt.step()
-        return float(loss), float(norm)
+        return float(loss.detach()), float(norm)
 
     return run
