@@ -277,3 +277,82 @@ def test_isolated_case_configs_and_table():
     text = report.markdown_table(rows, cols)
     assert "whole / sum" in text and "| G16VV-plain |" in text
     assert "| 0.99 |" in text and "| 1.31 |" in text and "| 0.98 |" in text
+
+
+def test_torch_peer_rows_pool_the_steps_and_pair_the_rounds():
+    """A row pools every step of every round (min / median / max), takes each framework's
+    worst peak and the median of the per-round ratios of medians."""
+    from gijax.bench.torch_peer import peer_row
+
+    def child(steps, peak, **extra):
+        return {"step_s": steps, "s_median": float(np.median(steps)), "peak_gb": peak,
+                "build_s": 1.0, "version": "v", "cpus": 2, **extra}
+
+    runs = {"gijax": [child([1.0, 2.0, 3.0], 0.5), child([2.0, 4.0], 0.7)],
+            "pytorch": [child([1.0, 1.0, 1.0], 0.9, threads=2, imported_jax=False),
+                        child([2.0, 2.0], 0.8, threads=2, imported_jax=False)]}
+    row = peer_row("G16VV-cpu", "train", 8, runs)
+    assert (row["gijax_s_min"], row["gijax_s_median"], row["gijax_s_max"]) == (1.0, 2.0, 4.0)
+    assert row["pytorch_s_median"] == 1.0 and row["pytorch_samples_per_s"] == 8.0
+    # Round medians 2 / 1 and 3 / 2.
+    assert row["ratio_per_round"] == [2.0, 1.5] and row["gijax_over_pytorch"] == 1.75
+    assert row["gijax_peak_gb"] == 0.7 and row["pytorch_peak_gb"] == 0.9
+    assert row["pytorch_imported_jax"] is False and row["rounds"] == 2
+
+
+def test_torch_peer_checks_presets_and_skips_without_torch(tmp_path):
+    """Presets the twin cannot build fail before anything runs, naming the choice; without
+    torch the case is one line and no rows; it runs only when named."""
+    from gijax.bench.suite import DEFAULT_CASES, case_tables
+    from gijax.bench.torch_peer import check_presets, measure_peers
+
+    assert "torch-peer" not in DEFAULT_CASES
+    with pytest.raises(ValueError, match="refine=True"):
+        check_presets(["G16VV-cpu-refine"])
+    with pytest.raises(ValueError, match="unknown model preset 'nope'"):
+        check_presets(["G16VV-cpu", "nope"])
+    lines = []
+    missing = str(tmp_path / "no-python")
+    got = measure_peers(["G16VV-cpu"], torch_python=missing, log=lines.append)
+    assert got["rows"] == [] and "torch is not installed for " + missing in got["skipped"]
+    assert len(lines) == 1 and lines[0].startswith("torch-peer: skipped: ")
+    tables = case_tables({"calibration": {"rows": []}, "cases": {"torch-peer": got}})
+    title, rows, cols = tables[-1]
+    assert "skipped, torch is not installed" in title and cols == []
+
+
+def test_gijax_bench_torch_peer_options(tmp_path, capsys):
+    """The case's options reach its settings; a preset the twin cannot build is one error
+    before the calibration; without torch the run still writes its report."""
+    from gijax.cli import main
+
+    assert main(["bench", "--cases", "torch-peer", "--torch-presets", "G16VV-cpu-refine",
+                 "--out", str(tmp_path / "bad")]) == 1
+    assert "refine=True" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    out = tmp_path / "peer"
+    assert main(["bench", "--cases", "torch-peer", "--torch-presets", "G16VV-cpu",
+                 "--torch-batches", "2", "--torch-modes", "infer", "--torch-rounds", "1",
+                 "--torch-python", str(tmp_path / "no-python"), "--reps", "1",
+                 "--warmup", "0", "--out", str(out), "--quiet"]) == 0
+    result = json.loads((out / "bench.json").read_text())
+    s = result["settings"]
+    assert (s["torch_presets"], s["torch_batches"], s["torch_modes"], s["torch_rounds"]) == (
+        ["G16VV-cpu"], [2], ["infer"], 1)
+    assert "torch is not installed" in result["cases"]["torch-peer"]["skipped"]
+    assert "skipped, torch is not installed" in (out / "bench.md").read_text()
+
+
+def test_torch_peer_table_shows_both_frameworks():
+    from gijax.bench.suite import case_tables
+
+    row = {"preset": "G16VV-cpu", "mode": "train", "batch": 8, "gijax_s_min": 1.1,
+           "gijax_s_median": 1.234, "gijax_s_max": 1.5, "pytorch_s_min": 0.6,
+           "pytorch_s_median": 0.72, "pytorch_s_max": 0.9, "gijax_samples_per_s": 6.48,
+           "pytorch_samples_per_s": 11.1, "gijax_over_pytorch": 1.714, "gijax_peak_gb": 1.26,
+           "pytorch_peak_gb": 0.95, "spherical": "torchvision.ops.deform_conv2d"}
+    title, rows, cols = case_tables({"calibration": {"rows": []},
+                                     "cases": {"torch-peer": {"rows": [row]}}})[-1]
+    text = report.markdown_table(rows, cols)
+    assert "PyTorch twin" in title
+    assert "| G16VV-cpu | train | 8 | 1.100 | 1.234 | 1.500 | 0.600 | 0.720 | 0.900 |" in text
+    assert "| 1.71 |" in text and "| 1.26 | 0.95 | torchvision.ops.deform_conv2d |" in text

@@ -179,10 +179,12 @@ def child_main(argv: Sequence[str] | None = None) -> int:
 
 # ------------------------------------------------------------------------------- parent
 
-def run_child(args: Sequence[str], log: Callable[[str], None] = print) -> dict:
-    """Run ``python -m gijax.bench.isolated *args`` in a fresh process; its JSON row.
-    RuntimeError naming the command and the end of its output when it fails."""
-    cmd = [sys.executable, "-m", "gijax.bench.isolated", *map(str, args)]
+def run_child(args: Sequence[str], log: Callable[[str], None] = print,
+              module: str = "gijax.bench.isolated", python: str | None = None) -> dict:
+    """Run ``python -m module *args`` in a fresh process (``python``: default this
+    interpreter); the JSON row it prints last. RuntimeError naming the command and the end of
+    its output when it fails."""
+    cmd = [python or sys.executable, "-m", module, *map(str, args)]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout)[-2000:]

@@ -19,6 +19,10 @@ from gijax.bench.machine import load_average, machine_info
 from gijax.bench.report import markdown_table, text_table, write_json, write_text
 
 PAPER_PRESETS = ("E8", "G8", "E16", "G16", "G16V", "G16V-released", "G16VV")
+# The distinct -cpu networks and losses, timed against the PyTorch twin by the torch-peer case:
+# E8 / G8 and E16 / G16 differ only in their candidates; G16 and G16V share a network but not
+# a loss (smooth L1, volume).
+TORCH_PEER_PRESETS = ("G8-cpu", "G16-cpu", "G16V-cpu", "G16V-released-cpu", "G16VV-cpu")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +45,12 @@ class SuiteSettings:
     scaling_cameras: tuple
     scaling_candidates: tuple
     isolated_presets: tuple = ()
+    torch_presets: tuple = TORCH_PEER_PRESETS
+    torch_batches: tuple = (8, 4)
+    torch_modes: tuple = ("infer", "train")
+    torch_rounds: int = 3
+    torch_threads: int = 2
+    torch_python: str | None = None
     reps: int = 5
     warmup: int = 1
     scaling_reps: int = 10
@@ -72,9 +82,11 @@ SUITES = {
 GPU_CALIBRATION = {"matmul_n": 8192, "bandwidth_mib": 2048}
 
 CASE_ORDER = ("forward", "stages", "onnx", "sweep", "candidates", "rtss", "train", "scaling",
-              "isolated")
-# 'isolated' spawns fresh processes per preset and exports every network: it runs when asked.
-DEFAULT_CASES = CASE_ORDER[:-1]
+              "isolated", "torch-peer")
+# 'isolated' spawns fresh processes per preset and exports every network, 'torch-peer' spawns
+# fresh processes per preset, mode, batch, framework and round: they run when asked.
+ON_REQUEST = ("isolated", "torch-peer")
+DEFAULT_CASES = tuple(c for c in CASE_ORDER if c not in ON_REQUEST)
 
 
 def select_device(kind: str):
@@ -111,16 +123,29 @@ def settings_for(suite: str, device, reps: int | None = None,
 
 def run_suite(suite: str = "quick", device: str = "cpu", out_dir: str | Path = "bench-out",
               cases: Sequence[str] | None = None, reps: int | None = None,
-              warmup: int | None = None, log: Callable[[str], None] = print) -> dict:
-    """Run the calibration and the chosen cases (default all), write ``bench.json``,
-    ``bench.md`` and (with the scaling case) ``scaling.png`` to ``out_dir``; returns the
-    result dict."""
+              warmup: int | None = None, log: Callable[[str], None] = print,
+              overrides: dict | None = None) -> dict:
+    """Run the calibration and the chosen cases (default all but :data:`ON_REQUEST`), write
+    ``bench.json``, ``bench.md`` and (with the scaling case) ``scaling.png`` to ``out_dir``;
+    returns the result dict. ``overrides`` replaces fields of the suite's
+    :class:`SuiteSettings` (e.g. ``torch_presets``)."""
     chosen = list(DEFAULT_CASES) if not cases else list(cases)
     unknown = [c for c in chosen if c not in C.CASES]
     if unknown:
         raise ValueError(f"unknown case(s) {unknown}; choose from {list(CASE_ORDER)}")
     dev = select_device(device)
     settings = settings_for(suite, dev, reps, warmup)
+    if overrides:
+        fields = {f.name for f in dataclasses.fields(SuiteSettings)}
+        bad = sorted(set(overrides) - fields)
+        if bad:
+            raise ValueError(f"unknown suite setting(s) {bad}; valid: {sorted(fields)}")
+        settings = dataclasses.replace(settings, **overrides)
+    if "torch-peer" in chosen:
+        # Before the first case runs: a preset the twin cannot build is an error now.
+        from gijax.bench.torch_peer import check_presets
+
+        check_presets(settings.torch_presets)
     out_dir = Path(out_dir)
     t_start = time.perf_counter()
     result = {"suite": suite, "settings": dataclasses.asdict(settings),
@@ -181,8 +206,21 @@ ISOLATED_COLS = [("preset", "preset"), ("same network as", "same_as"), *[(f"{k} 
     ("ORT low s", "ort_low_s", ".2f"), ("ORT low GB", "ort_low_peak_gb", ".2f")]
 
 
+TORCH_PEER_COLS = [
+    ("preset", "preset"), ("mode", "mode"), ("batch", "batch"),
+    ("gijax min s", "gijax_s_min", ".3f"), ("gijax median s", "gijax_s_median", ".3f"),
+    ("gijax max s", "gijax_s_max", ".3f"), ("PyTorch min s", "pytorch_s_min", ".3f"),
+    ("PyTorch median s", "pytorch_s_median", ".3f"), ("PyTorch max s", "pytorch_s_max", ".3f"),
+    ("gijax samples/s", "gijax_samples_per_s", ".2f"),
+    ("PyTorch samples/s", "pytorch_samples_per_s", ".2f"),
+    ("gijax / PyTorch", "gijax_over_pytorch", ".2f"),
+    ("gijax peak GB", "gijax_peak_gb", ".2f"), ("PyTorch peak GB", "pytorch_peak_gb", ".2f"),
+    ("spherical layer", "spherical")]
+
+
 def case_tables(result: dict) -> list[tuple[str, list, list]]:
-    """(title, rows, columns) of every table of the report, in order."""
+    """(title, rows, columns) of every table of the report, in order; a case that was skipped
+    has its title (saying why) and no columns."""
     cases = result["cases"]
     out = [("Calibration (limits measured in this run)", result["calibration"]["rows"],
             [("what", "what"), ("median ms", "ms_median", ".2f"), ("min ms", "ms_min", ".2f"),
@@ -249,6 +287,15 @@ def case_tables(result: dict) -> list[tuple[str, list, list]]:
         out.append(("Each preset in fresh processes: JAX whole forward and stages (surrogates "
                     "in), onnxruntime on the exported file (raw fisheyes in, a process without "
                     "JAX); peak resident set per process", rows, ISOLATED_COLS))
+    if "torch-peer" in cases:
+        peer = cases["torch-peer"]
+        title = ("gijax vs its PyTorch twin (fresh process per measurement, frameworks "
+                 "alternating, same threads; s per step min / median / max over all rounds)")
+        if peer.get("skipped"):
+            # One line, no table.
+            out.append((title + f": skipped, {peer['skipped']}", [], []))
+        else:
+            out.append((title, peer["rows"], TORCH_PEER_COLS))
     if "scaling" in cases:
         rows = sorted(cases["scaling"]["rows"], key=lambda r: (r["cameras"], r["candidates"]))
         out.append(("Scaling with cameras and candidates (polygon rigs, 1 m sides, alternating)",
@@ -300,7 +347,7 @@ def render_markdown(result: dict) -> str:
              "% peak FLOP/s against the matmul calibration, % bandwidth against the copy/sum "
              "calibration; roofline ms = max(FLOPs / peak, bytes / bandwidth)", ""]
     for title, rows, cols in case_tables(result):
-        lines += [f"## {title}", "", markdown_table(rows, cols), ""]
+        lines += [f"## {title}", ""] + ([markdown_table(rows, cols), ""] if cols else [])
     inc = increments(result)
     if inc:
         lines += ["## Increments", ""] + inc + [""]
@@ -312,7 +359,8 @@ def render_markdown(result: dict) -> str:
 def print_summary(result: dict, log: Callable[[str], None] = print) -> None:
     for title, rows, cols in case_tables(result):
         log(f"\n{title}")
-        log(text_table(rows, cols))
+        if cols:
+            log(text_table(rows, cols))
     for line in increments(result):
         log(line)
 
@@ -331,19 +379,43 @@ def add_arguments(parser) -> None:
                         metavar="CASE",
                         help=f"run only these cases (default: {', '.join(DEFAULT_CASES)}; "
                              "'isolated' measures every preset of the suite in fresh processes, "
-                             "JAX and onnxruntime, with each process's peak memory, and runs "
-                             "only when named); the calibration always runs")
+                             "JAX and onnxruntime, with each process's peak memory; "
+                             "'torch-peer' times gijax against its PyTorch twin, inference "
+                             "and training step, in fresh processes; both run only when "
+                             "named); the calibration always runs")
     parser.add_argument("--reps", type=int, default=None,
                         help="timed repetitions per measurement (default: the suite's)")
     parser.add_argument("--warmup", type=int, default=None,
                         help="untimed warm-up calls (default: the suite's)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    peer = parser.add_argument_group("torch-peer case")
+    peer.add_argument("--torch-presets", nargs="+", default=None, metavar="PRESET",
+                      help=f"presets to time (default: {' '.join(TORCH_PEER_PRESETS)}; paper "
+                           "presets are slow: use them with --torch-modes infer)")
+    peer.add_argument("--torch-batches", nargs="+", type=int, default=None, metavar="B",
+                      help="batch sizes (default: 8 4)")
+    peer.add_argument("--torch-modes", nargs="+", choices=("infer", "train"), default=None,
+                      help="inference (eval-mode forward) and / or training step (default: "
+                           "both)")
+    peer.add_argument("--torch-rounds", type=int, default=None,
+                      help="alternating rounds, a fresh process per framework each "
+                           "(default: 3); each times --reps steps after --warmup")
+    peer.add_argument("--torch-threads", type=int, default=None,
+                      help="CPU threads of either framework (default: 2)")
+    peer.add_argument("--torch-python", default=None, metavar="PYTHON",
+                      help="interpreter that has torch for the PyTorch processes (default: "
+                           "the one running the suite)")
 
 
 def run_from_args(args) -> int:
     log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
+    peer = {"torch_presets": args.torch_presets, "torch_batches": args.torch_batches,
+            "torch_modes": args.torch_modes, "torch_rounds": args.torch_rounds,
+            "torch_threads": args.torch_threads, "torch_python": args.torch_python}
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in peer.items()
+                 if v is not None}
     result = run_suite(args.suite, args.device, args.out, args.cases, args.reps, args.warmup,
-                       log=log)
+                       log=log, overrides=overrides)
     print_summary(result)
     print(f"\n{result['suite']} suite: {result['total_s']:.0f} s; wrote "
           f"{Path(args.out) / 'bench.json'} and {Path(args.out) / 'bench.md'}")
