@@ -1,5 +1,5 @@
-"""The Unified (Mei / Kalibr omni + radtan) camera model against OpenCV's cv2.omnidir and
-closed forms.
+"""The Unified (Mei / Kalibr omni + radtan) camera model against OpenCV's cv2.omnidir, closed
+forms and its Kalibr import.
 
 OpenCV's reference pixels come from tests/fixtures/omnidir (opencv-contrib, which cannot be
 installed beside gijax's OpenCV; the generator and its command are there).
@@ -13,9 +13,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import yaml
 
 from gijax.geometry import cameras as C
 from gijax.geometry.field_of_view import model_limit
+from gijax.geometry.rig import project_rig_points
+from gijax.io.rigfile import load_rig
 
 FIXTURES = Path(__file__).parent / "fixtures" / "omnidir"
 OPENCV = json.loads((FIXTURES / "omnidir_projections.json").read_text())
@@ -149,3 +152,58 @@ def test_unprojection_refuses_pixels_past_the_rim():
     assert np.asarray(ok).tolist() == [True, False, False]
     g = jax.jit(jax.grad(lambda c, q: jnp.sum(C.unproject(c, q)[0]), argnums=(0, 1)))(cam, px)
     assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree_util.tree_leaves(g))
+
+
+# ------------------------------------------------------------------ Kalibr import
+
+
+def test_kalibr_camchain_imports_and_projects_like_opencv():
+    path = FIXTURES / "camchain_omni.yaml"
+    chain = yaml.safe_load(path.read_text())
+    rig = load_rig(path)
+    assert [c.MODEL for c in rig.cameras] == ["omni", "omni"]
+    assert [(c.width, c.height) for c in rig.cameras] == [(WIDTH, HEIGHT)] * 2
+    # cam0 is the rig frame; cam1's points reach it through the inverse of T_cn_cnm1.
+    t10 = np.asarray(chain["cam1"]["T_cn_cnm1"], np.float64)
+    homog = np.concatenate([POINTS, np.ones((len(POINTS), 1))], -1)
+    for i, (name, in_rig) in enumerate((("xi1.2-radtan", POINTS),
+                                        ("xi1.8-radtan", (homog @ np.linalg.inv(t10).T)[:, :3]))):
+        ref = np.asarray(CASES[name]["pixels"])
+        px, ok = project_rig_points(rig, jnp.asarray(in_rig, jnp.float32))
+        inside = _in_image(ref)
+        assert np.array_equal(np.asarray(ok[i]), inside)
+        np.testing.assert_allclose(np.asarray(px[i], np.float64)[inside], ref[inside], atol=1e-3,
+                                   err_msg=f"camera {i}")
+
+
+def _chain(tmp_path, **cam0):
+    chain = yaml.safe_load((FIXTURES / "camchain_omni.yaml").read_text())
+    chain["cam0"].update(cam0)
+    for k in [k for k, v in cam0.items() if v is None]:
+        chain["cam0"].pop(k)
+    path = tmp_path / "camchain.yaml"
+    path.write_text(yaml.safe_dump(chain))
+    return path
+
+
+def test_kalibr_omni_without_distortion(tmp_path):
+    rig = load_rig(_chain(tmp_path, distortion_model="none", distortion_coeffs=[]))
+    p = C.camera_params(rig.cameras[0])
+    assert (p["xi"], p["fx"], p["cy"]) == (np.float32(1.2), 500.0, np.float32(510.2))
+    assert (p["k1"], p["k2"], p["p1"], p["p2"]) == (0.0, 0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("fields,field", [
+    (dict(distortion_model="equidistant"), "distortion_model"),
+    (dict(distortion_model="fov", distortion_coeffs=[0.9]), "distortion_model"),
+    (dict(distortion_coeffs=[-0.25, 0.06, 0.0]), "distortion_coeffs"),
+    (dict(distortion_coeffs=None), "distortion_coeffs"),
+    (dict(intrinsics=[500.0, 501.5, 641.0, 510.2]), "intrinsics"),
+])
+def test_kalibr_omni_refusals_name_file_camera_and_field(tmp_path, fields, field):
+    path = _chain(tmp_path, **fields)
+    with pytest.raises(ValueError) as exc:
+        load_rig(path)
+    msg = str(exc.value)
+    assert "\n" not in msg
+    assert str(path) in msg and "camera 'cam0'" in msg and f"field '{field}'" in msg
