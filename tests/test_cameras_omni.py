@@ -169,7 +169,7 @@ def test_kalibr_camchain_imports_and_projects_like_opencv():
     for i, (name, in_rig) in enumerate((("xi1.2-radtan", POINTS),
                                         ("xi1.8-radtan", (homog @ np.linalg.inv(t10).T)[:, :3]))):
         ref = np.asarray(CASES[name]["pixels"])
-        px, ok = project_rig_points(rig, jnp.asarray(in_rig, jnp.float32))
+        px, ok = jax.jit(project_rig_points)(rig, jnp.asarray(in_rig, jnp.float32))
         inside = _in_image(ref)
         assert np.array_equal(np.asarray(ok[i]), inside)
         np.testing.assert_allclose(np.asarray(px[i], np.float64)[inside], ref[inside], atol=1e-3,
