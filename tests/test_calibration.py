@@ -108,6 +108,19 @@ def test_basalt_import_values_and_poses(tmp_path):
     np.testing.assert_allclose(np.asarray(rig.reference), [0.15, 0.0, 0.0], atol=1e-7)
 
 
+def test_gijax_yaml_round_trip_of_a_unified_camera(tmp_path):
+    cam = make_camera("omni", dict(fx=500.0, fy=501.5, cx=641.0, cy=510.2, xi=1.2, k1=-0.25,
+                                   k2=0.06, p1=-1e-4, p2=5e-4), 1280, 1024, 200.0)
+    rig = make_rig([cam], [np.eye(3)], [[0.0, 0.0, 0.0]])
+    path = save_rig(rig, tmp_path / "rig.yaml")
+    entry = yaml.safe_load(path.read_text())["cameras"][0]
+    assert entry["model"] == "omni" and entry["intrinsics"]["p2"] == 5e-4
+    back = load_rig(path)
+    assert type(back.cameras[0]) is type(cam)
+    for a, b in zip(jax.tree_util.tree_leaves(rig), jax.tree_util.tree_leaves(back)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 def test_gijax_yaml_round_trip(tmp_path):
     cams = [make_camera("ds", dict(fx=232.0, fy=231.0, cx=611.5, cy=513.5, xi=-0.203,
                                    alpha=0.589), 1224, 1028, 190.0),
@@ -193,7 +206,8 @@ def test_bad_gijax_file(tmp_path, case):
 
 
 BAD_KALIBR = {
-    "unknown model": ({"cam1": {"camera_model": "omni"}}, "cam1", "camera_model"),
+    "unknown model": ({"cam1": {"camera_model": "scaramuzza"}}, "cam1", "camera_model"),
+    "omni intrinsics": ({"cam1": {"camera_model": "omni"}}, "cam1", "intrinsics"),
     "wrong count": ({"cam0": {"intrinsics": DS_A[:5]}}, "cam0", "intrinsics"),
     "nan": ({"cam2": {"distortion_coeffs": [0.0, float("nan"), 0.0, 0.0]}}, "cam2",
             "distortion_coeffs"),

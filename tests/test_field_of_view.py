@@ -156,6 +156,11 @@ IMAGE_CASES = {
     "ds cropped": ("ds", dict(PAPER_DS, fx=400.0, fy=390.0), 1224, 1028),
     "kb off-centre": ("kb", dict(fx=300.0, fy=301.0, cx=600.0, cy=500.0, k1=0.01, k2=-0.002,
                                  k3=0.0003, k4=-4e-5), 1280, 960),
+    # Unified: a circular image (xi > 1), and one that the sensor crops (xi < 1)
+    "omni circular": ("omni", dict(fx=700.0, fy=698.0, cx=637.5, cy=513.0, xi=1.8, k1=-0.12,
+                                   k2=0.08, p1=0.0, p2=0.0), 1280, 1024),
+    "omni cropped": ("omni", dict(fx=350.0, fy=349.0, cx=639.3, cy=511.8, xi=0.9, k1=-0.2,
+                                  k2=0.03, p1=0.0, p2=0.0), 1280, 1024),
 }
 
 

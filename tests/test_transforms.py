@@ -254,7 +254,8 @@ def lens(seed, model="equidistant"):
     j = 0.02 * seed
     base = dict(fx=FOCAL * (1 + j), fy=FOCAL * (1 - j), cx=7.5 + j, cy=7.5 - j)
     extra = {"ds": dict(xi=-0.2 + j, alpha=0.59 - j), "eucm": dict(alpha=0.6 + j, beta=1.1 - j),
-             "kb": dict(k1=0.02 + j, k2=-0.01, k3=0.003, k4=-0.001), "equidistant": {}}[model]
+             "kb": dict(k1=0.02 + j, k2=-0.01, k3=0.003, k4=-0.001), "equidistant": {},
+             "omni": dict(xi=1.1 + j, k1=-0.2 + j, k2=0.04, p1=3e-3, p2=-2e-3 + j)}[model]
     return cameras.make_camera(model, {**base, **extra}, SIZE, SIZE, 195.0, dtype=F64)
 
 
@@ -348,7 +349,7 @@ def _away_from_zero(seed):
 
 # ------------------------------------------------------------------------------ geometry
 
-for _model in ("ds", "eucm", "kb", "equidistant"):
+for _model in ("ds", "eucm", "kb", "equidistant", "omni"):
     case(cameras.project, diff=(0, 1), label=f"project[{_model}]",
          degenerate=[("axis, fov edge, behind, centre",
                       functools.partial(lambda m: (lens(0, m), degenerate_points()), _model),
@@ -371,14 +372,31 @@ def _off_centre(seed, model):
                                 cy=jnp.asarray(8.2 - 0.1 * seed, F64)),)
 
 
-for _model in ("ds", "eucm", "kb", "equidistant"):
+LIMIT_DEGENERATE = {
+    m: [("alpha = 0.5: the limit is the backward axis", functools.partial(
+        lambda m: (dataclasses.replace(lens(0, m), alpha=jnp.asarray(0.5, F64)),), m), False)]
+    for m in ("ds", "eucm")}
+LIMIT_DEGENERATE["omni"] = [
+    ("xi = 1 without a fold: the limit is the backward axis", lambda: (dataclasses.replace(
+        lens(0, "omni"), xi=jnp.asarray(1.0, F64), k1=jnp.asarray(0.0, F64)),), False),
+    ("k2 = 0: the fold from k1 alone", lambda: (dataclasses.replace(
+        lens(0, "omni"), k2=jnp.asarray(0.0, F64)),), False)]
+
+
+
+def _limit_args(model, seed):
+    cam = lens(seed, model)
+    if model == "omni":  # the radial distortion folds inside the sphere's limit (r^2 = 2)
+        cam = dataclasses.replace(cam, k2=jnp.asarray(0.01, F64))
+    return (cam,)
+
+
+for _model in ("ds", "eucm", "kb", "equidistant", "omni"):
     case(field_of_view.field_of_view, diff=(0,), label=f"field_of_view[{_model}]")(
         functools.partial(lambda m, seed: _off_centre(seed, m), _model))
     case(field_of_view.model_limit, diff=(0,), label=f"model_limit[{_model}]",
-         degenerate=[("alpha = 0.5: the limit is the backward axis", functools.partial(
-             lambda m: (dataclasses.replace(lens(0, m), alpha=jnp.asarray(0.5, F64)),), _model),
-             False)] if _model in ("ds", "eucm") else [])(
-        functools.partial(lambda m, seed: (lens(seed, m),), _model))
+         degenerate=LIMIT_DEGENERATE.get(_model, []))(
+        functools.partial(_limit_args, _model))
 
 
 def _field_mask():

@@ -1,7 +1,8 @@
 """Kalibr / TartanCalib ``camchain.yaml`` import.
 
-Top-level keys ``cam0``, ``cam1``, ... each hold ``camera_model`` (``ds``, ``eucm``, or
-``pinhole`` with ``distortion_model: equidistant``, the Kannala-Brandt fisheye model),
+Top-level keys ``cam0``, ``cam1``, ... each hold ``camera_model`` (``ds``, ``eucm``,
+``pinhole`` with ``distortion_model: equidistant``, the Kannala-Brandt fisheye model, or
+``omni`` with ``distortion_model: radtan`` or ``none``, the Unified model),
 ``intrinsics``, ``resolution`` and, from ``cam1`` on, ``T_cn_cnm1``: the 4x4 transform that maps
 points of camera n-1 into camera n. The chain is composed back to camera 0 and turned into
 camera-to-rig poses by :func:`gijax.io.parsing.chain_to_rig`.
@@ -22,7 +23,7 @@ def _camera(key: str, c: dict, where: Where):
     w = where.at(key)
     if not isinstance(c, dict):
         raise w.error(key, "a mapping with camera_model, intrinsics, resolution", c)
-    model = require(c, "camera_model", w, "one of 'ds', 'eucm', 'pinhole'")
+    model = require(c, "camera_model", w, "one of 'ds', 'eucm', 'pinhole', 'omni'")
     intr = require(c, "intrinsics", w, "a list of intrinsics")
     dist = c.get("distortion_model", "none")
     if model == "ds":
@@ -40,10 +41,22 @@ def _camera(key: str, c: dict, where: Where):
                    "distortion_coeffs", w, "4 values [k1, k2, k3, k4]")
         gmodel = "kb"
         params = dict(fx=v[0], fy=v[1], cx=v[2], cy=v[3], k1=k[0], k2=k[1], k3=k[2], k4=k[3])
+    elif model == "omni":
+        v = floats(intr, 5, "intrinsics", w, "5 values [xi, fu, fv, pu, pv] for 'omni'")
+        if dist == "radtan":
+            k = floats(require(c, "distortion_coeffs", w, "[k1, k2, p1, p2]"), 4,
+                       "distortion_coeffs", w, "4 values [k1, k2, p1, p2] for 'radtan'")
+        elif dist in ("none", None):
+            k = (0.0, 0.0, 0.0, 0.0)
+        else:
+            raise w.error("distortion_model", "'radtan' or 'none' for camera_model 'omni'", dist)
+        gmodel = "omni"
+        params = dict(xi=v[0], fx=v[1], fy=v[2], cx=v[3], cy=v[4], k1=k[0], k2=k[1], p1=k[2],
+                      p2=k[3])
     else:
         raise w.error("camera_model", "one of 'ds', 'eucm', 'pinhole' (with distortion_model "
-                                      "'equidistant')", model)
-    if model != "pinhole" and dist not in ("none", None):
+                                      "'equidistant'), 'omni' (with 'radtan' or 'none')", model)
+    if model in ("ds", "eucm") and dist not in ("none", None):
         raise w.error("distortion_model", f"'none' for camera_model {model!r}", dist)
     res = resolution(require(c, "resolution", w, "[width, height]"), w)
     cam = checked_camera(gmodel, {k: float(x) for k, x in params.items()}, res, None, w)

@@ -19,7 +19,7 @@ The gijax YAML format (lengths in metres, angles in degrees, pixels with integer
       {x: 0.0, y: 0.0, radius: 0.05, z_min: 0.0, z_max: 0.1}
     cameras:
       - name: cam0                      # optional, default camN
-        model: ds                       # ds | eucm | kb | equidistant
+        model: ds                       # ds | eucm | kb | equidistant | omni
         intrinsics: {fx: 232.0, fy: 232.0, cx: 611.5, cy: 513.5, xi: -0.203, alpha: 0.589}
         resolution: [1224, 1028]        # [width, height]
         fov_deg: 195.0                  # optional full field-of-view cone, default 360
@@ -29,7 +29,8 @@ The gijax YAML format (lengths in metres, angles in degrees, pixels with integer
         mask: cam0_mask.png             # optional, relative to this file; nonzero = valid
 
 Intrinsics by model: ``ds`` fx fy cx cy xi alpha; ``eucm`` fx fy cx cy alpha beta; ``kb``
-fx fy cx cy k1 k2 k3 k4; ``equidistant`` fx fy cx cy.
+fx fy cx cy k1 k2 k3 k4; ``equidistant`` fx fy cx cy; ``omni`` (Unified + radial-tangential)
+fx fy cx cy xi k1 k2 p1 p2.
 
 Calibration files are turned into camera-to-rig poses with the rig frame equal to camera
 ``frame_camera`` (0 unless told otherwise), whose optical axis is then the rig's viewing axis,
