@@ -349,7 +349,10 @@ def _away_from_zero(seed):
 
 # ------------------------------------------------------------------------------ geometry
 
-for _model in ("ds", "eucm", "kb", "equidistant", "omni"):
+# Every camera model gijax has: a new model gets every camera property without a new line here.
+LENS_MODELS = tuple(cameras.CAMERA_MODELS)
+
+for _model in LENS_MODELS:
     case(cameras.project, diff=(0, 1), label=f"project[{_model}]",
          degenerate=[("axis, fov edge, behind, centre",
                       functools.partial(lambda m: (lens(0, m), degenerate_points()), _model),
@@ -391,7 +394,7 @@ def _limit_args(model, seed):
     return (cam,)
 
 
-for _model in ("ds", "eucm", "kb", "equidistant", "omni"):
+for _model in LENS_MODELS:
     case(field_of_view.field_of_view, diff=(0,), label=f"field_of_view[{_model}]")(
         functools.partial(lambda m, seed: _off_centre(seed, m), _model))
     case(field_of_view.model_limit, diff=(0,), label=f"model_limit[{_model}]",
@@ -407,7 +410,7 @@ def _field_mask():
     return jnp.asarray(mask)
 
 
-for _model in ("ds", "eucm", "kb", "equidistant"):
+for _model in LENS_MODELS:
     case(field_of_view.mask_field_of_view, diff=(0,), label=f"mask_field_of_view[{_model}]")(
         functools.partial(lambda m, seed: (*_off_centre(seed, m), _field_mask()), _model))
 
