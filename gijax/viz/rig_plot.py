@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from gijax.geometry.rig import Rig, pairwise_baselines
+from gijax.io.paths import save_figure_atomic
 
 
 def _cone_outline(rot: np.ndarray, half_angle: float, length: float, plane: tuple[int, int]):
@@ -99,10 +100,7 @@ def plot_rig(rig: Rig, path, title: str | None = None) -> Path:
     fig.suptitle(title or f"{rig.num_cameras} cameras, baselines {off.min():.3f}-{off.max():.3f} m"
                  if len(off) else title or "1 camera")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    try:
+        return save_figure_atomic(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
