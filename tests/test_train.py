@@ -190,7 +190,7 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
 def test_all_checkpoints_corrupt_is_a_clear_error(tmp_path):
     import jax.numpy as jnp
 
-    from gijax.train.checkpoints import CheckpointStore
+    from gijax.store.checkpoints import CheckpointStore
 
     store = CheckpointStore(tmp_path, keep=2, best_metric=None)
     state = {"w": jnp.arange(4.0)}
