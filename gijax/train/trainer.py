@@ -335,7 +335,7 @@ class Trainer:
         with open(self.run_dir / METRICS_FILE, "a") as f:
             f.write(json.dumps(record) + "\n")
         if self._tb is None:
-            from gijax.train.tbwriter import EventWriter
+            from gijax.io.events import EventWriter
 
             self._tb = EventWriter(self.run_dir / "tb")
         prefix = record.get("split", "train")
@@ -536,7 +536,7 @@ def drop_logs_after(run_dir, step: int) -> None:
     logs) again from the last checkpoint; dropping them first keeps one record per step, so
     readers need no de-duplication. A line or event cut short by the kill goes too.
     """
-    from gijax.train.tbwriter import drop_events_after
+    from gijax.io.events import drop_events_after
 
     run_dir = Path(run_dir)
     path = run_dir / METRICS_FILE
