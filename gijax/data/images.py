@@ -1,9 +1,9 @@
-"""Reading camera images and masks from ordinary image files (PNG, JPEG, ...) for inference.
+"""Reading camera images from ordinary image files (PNG, JPEG, ...) for inference.
 
 Dataset images go through :mod:`gijax.data.reader`; this is for the files a user points a
-command at (``gijax predict --images``, ``gijax trt run``; masks are read by
-:func:`gijax.io.masks.read_mask`), with :func:`fit_images`, the one
-image-size policy of every method (JAX model, ONNX file, classical baseline).
+command at (``gijax predict --images``, ``gijax trt run``; their masks are read by
+:func:`gijax.io.masks.read_mask`), with :func:`fit_images`, the one image-size policy of every
+method (JAX model, ONNX file, classical baseline).
 """
 
 from __future__ import annotations

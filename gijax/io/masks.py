@@ -1,5 +1,5 @@
-"""Per-camera rig masks from files: reading a mask PNG, attaching masks to a rig, and the warning
-for a rig used for stereo without them.
+"""Masks from files: the one mask reader (rig files, ``--masks``, datasets), attaching masks to a
+rig, and the warning for a rig used for stereo without them.
 
 A rig mask marks the pixels of one camera that see the world (nonzero) rather than the rig's own
 body (zero). Without one, the body in every image is matched as if it were scene, which pulls
