@@ -21,7 +21,6 @@ beside one busy process per core, started
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shlex
 import subprocess
@@ -111,12 +110,10 @@ def main() -> int:
     print(f"{'background':28s} {'foreground s':>13s} {'slowdown':>9s}")
     for r in rows:
         print(f"{r['background']:28s} {r['foreground_s']:13.2f} {r['slowdown']:8.2f}x")
-    from gijax.io.paths import write_text_atomic
+    from gijax.io.paths import write_json_atomic
 
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out, json.dumps({"reps": reps, "burners": args.burners, "cpus": os.cpu_count(),
-                               "rows": rows}, indent=1) + "\n")
+    out = write_json_atomic(args.out, {"reps": reps, "burners": args.burners,
+                                       "cpus": os.cpu_count(), "rows": rows}, indent=1)
     print(f"written {out}")
     return 0
 

@@ -7,17 +7,16 @@ Each timing is the best of ``--repeats`` runs on ``--points`` points after one w
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from gijax.geometry import cameras as C
+from gijax.io.paths import write_json_atomic
 
 CAMERAS = {
     "ds": dict(fx=232.0, fy=232.0, cx=611.5, cy=513.5, xi=-0.203, alpha=0.589),
@@ -63,9 +62,7 @@ def main(argv=None):
         print(f"{r['model']:<12}{r['project_mpts_s']:>16.1f}{r['unproject_mpts_s']:>18.1f}")
     meta = dict(device=str(jax.devices()[0]), jax=jax.__version__, cpu_count=os.cpu_count(),
                 machine=platform.machine(), loadavg=os.getloadavg(), dtype="float32")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(dict(meta=meta, results=rows), indent=2))
+    out = write_json_atomic(args.out, dict(meta=meta, results=rows))
     print(f"wrote {out}  (device {meta['device']}, load average {meta['loadavg'][0]:.1f})")
 
 

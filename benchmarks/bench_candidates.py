@@ -8,9 +8,6 @@ respect to the camera translations. Prints a table and writes JSON (``--out``).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import tempfile
 import time
 
 import jax
@@ -20,6 +17,7 @@ import numpy as np
 from gijax.candidates import rig_gi_candidates
 from gijax.candidates.rig_aware import DEFAULT_PANO, as_float_rig
 from gijax.geometry.layouts import builtin_rig
+from gijax.io.paths import write_json_atomic
 
 
 def _time(fn, repeats: int) -> tuple[float, float]:
@@ -74,12 +72,7 @@ def main(argv=None) -> int:
               f"{r['compile_s']:9.2f}")
     out = dict(benchmark="candidates", dtype=dtype, backend=jax.default_backend(),
                panorama_rays=rays, repeats=args.repeats, rows=rows)
-    folder = os.path.dirname(os.path.abspath(args.out))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".json", dir=folder)
-    with os.fdopen(fd, "w") as fh:
-        json.dump(out, fh, indent=2)
-    os.replace(tmp, args.out)
+    write_json_atomic(args.out, out)
     print(f"wrote {args.out}")
     return 0
 

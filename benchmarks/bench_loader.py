@@ -15,7 +15,6 @@ training step running beside it.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -32,6 +31,7 @@ from gijax.data.writer import write_dataset  # noqa: E402
 from gijax.geometry.layouts import builtin_rig  # noqa: E402
 from gijax.geometry.panorama import Panorama  # noqa: E402
 from gijax.geometry.rig import scale_rig  # noqa: E402
+from gijax.io.paths import write_json_atomic  # noqa: E402
 
 
 def _cpu_preset_sizes() -> dict:
@@ -124,10 +124,8 @@ def main(argv=None) -> int:
               f"{r['batches_per_s']:>11.2f}{r['samples_per_s']:>11.2f}{r['cpu_s_per_batch']:>12.2f}"
               f"{r['first_batch_s']:>12.2f}"
               f"{r['write_samples_per_s']:>9.2f}")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"benchmark": "loader", "cpu_count": os.cpu_count(),
-                               "rows": rows}, indent=2) + "\n")
+    out = write_json_atomic(args.out, {"benchmark": "loader", "cpu_count": os.cpu_count(),
+                                       "rows": rows})
     print(f"wrote {out}")
     return 0
 

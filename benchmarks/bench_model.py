@@ -17,7 +17,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -35,6 +34,7 @@ from gijax.bench.cases.programs import structure  # noqa: E402
 from gijax.bench.memory import compiled_memory, host_peak_rss_mib, rss_bytes  # noqa: E402
 from gijax.geometry.layouts import builtin_rig  # noqa: E402
 from gijax.geometry.rig import scale_rig  # noqa: E402
+from gijax.io.paths import write_json_atomic  # noqa: E402
 from gijax.model import create_model  # noqa: E402
 from gijax.nn.presets import PRESETS  # noqa: E402
 
@@ -120,13 +120,9 @@ def main(argv=None) -> int:
         xla = "n/a" if r["xla_peak_mb"] is None else f"{r['xla_peak_mb']:.0f}"
         print(f"{r['size']:5s} {r['preset']:18s} {r['cameras']:4d} {r['median_ms']:10.1f} "
               f"{r['min_ms']:9.1f} {r['compile_s']:9.1f} {xla:>11s} {r['rss_delta_mb']:8.0f}  {note}")
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    tmp = args.out + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(dict(device=str(jax.devices()[0]), platform=platform.platform(),
-                       cpu_count=os.cpu_count(), jax=jax.__version__, reps=args.reps,
-                       warmup=args.warmup, rows=rows), f, indent=2)
-    os.replace(tmp, args.out)
+    write_json_atomic(args.out, dict(device=str(jax.devices()[0]), platform=platform.platform(),
+                                     cpu_count=os.cpu_count(), jax=jax.__version__,
+                                     reps=args.reps, warmup=args.warmup, rows=rows))
     print(f"wrote {args.out}")
     return 0
 

@@ -168,11 +168,9 @@ def main(argv=None) -> int:
               f"{r['jax_peak_growth_mb'] or float('nan'):8.0f} "
               f"{r['ort_peak_growth_mb'] or float('nan'):8.0f} "
               f"{r['max_abs_diff_inv_distance']:9.1e}")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"cpu_count": os.cpu_count(), "rows": rows}, indent=2))
-    os.replace(tmp, out)
+    from gijax.io.paths import write_json_atomic
+
+    out = write_json_atomic(args.out, {"cpu_count": os.cpu_count(), "rows": rows})
     print(f"wrote {out}")
     return 0
 

@@ -12,7 +12,6 @@ montage (camera images, masks, camera distances, panorama distance) of one sampl
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -27,6 +26,7 @@ import numpy as np  # noqa: E402
 from gijax.geometry.layouts import builtin_rig  # noqa: E402
 from gijax.geometry.panorama import Panorama  # noqa: E402
 from gijax.geometry.rig import scale_rig  # noqa: E402
+from gijax.io.paths import save_figure_atomic, write_json_atomic  # noqa: E402
 from gijax.render import render_sample  # noqa: E402
 from gijax.render.render import choose_style  # noqa: E402
 
@@ -66,10 +66,10 @@ def save_montage(sample: dict, path: str, title: str) -> None:
     ax.axis("off")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        save_figure_atomic(fig, path)
+    finally:
+        plt.close(fig)
 
 
 def time_rig(rig, pano: Panorama, samples: int, first_seed: int = 0) -> dict:
@@ -120,11 +120,7 @@ def main(argv=None) -> int:
         seed += 1
     report = dict(device=str(jax.devices()[0]), platform=platform.platform(),
                   cpu_count=os.cpu_count(), results=results)
-    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    tmp = args.out + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(report, f, indent=2)
-    os.replace(tmp, args.out)
+    write_json_atomic(args.out, report)
     print(f"{'size':<12}{'cameras':>16}{'panorama':>10}{'first call s':>14}{'s/sample':>10}"
           f"{'samples/s':>11}{'Mrays/s':>9}")
     for name, r in results.items():

@@ -10,10 +10,8 @@ Prints a table and writes JSON (``--out``, default benchmarks/out/bench_rtss.jso
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
-import tempfile
 import time
 
 import jax
@@ -27,6 +25,7 @@ from gijax.bench.memory import compiled_memory, host_peak_rss_mib  # noqa: E402
 from gijax.geometry.layouts import builtin_rig  # noqa: E402
 from gijax.geometry.panorama import Panorama  # noqa: E402
 from gijax.geometry.rig import scale_rig  # noqa: E402
+from gijax.io.paths import write_json_atomic  # noqa: E402
 
 RIGS = {3: "paper-train", 4: "paper-test3"}
 SIZES = {  # name: (rig image scale, matching size, panorama)
@@ -121,11 +120,7 @@ def main(argv=None) -> int:
         for r in result["accuracy"]:
             print(f"{r['rig']:12} {r['preset']:7} {r['mae']:7.4f} {r['rmse']:7.4f} "
                   f"{r['valid_fraction']:6.3f}")
-    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(a.out)), suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(result, f, indent=2)
-    os.replace(tmp, a.out)
+    write_json_atomic(a.out, result)
     print(f"wrote {a.out}")
     return 0
 

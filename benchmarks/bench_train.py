@@ -72,9 +72,9 @@ def main() -> int:
             print(f"{row['preset']:<20}{row['devices']:>8}{row['batch']:>7}"
                   f"{row['samples_per_s']:>12.2f}{row['s_per_step']:>11.2f}"
                   f"{row['setup_and_compile_s']:>12.1f}", flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"cpu_count": os.cpu_count(), "rows": rows}, indent=2))
+    from gijax.io.paths import write_json_atomic
+
+    out = write_json_atomic(args.out, {"cpu_count": os.cpu_count(), "rows": rows})
     print(f"written {out}")
     return 0
 

@@ -12,14 +12,13 @@ regression. Batch 1, 3 cameras, eval mode, median of ``--reps`` after one warm-u
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import jax
 
 from gijax.bench.cases.programs import stage_programs
 from gijax.bench.isolated import STAGES, bench_config, stage_times
 from gijax.bench.timing import time_call
+from gijax.io.paths import write_json_atomic
 
 # G16VV-plain (G16VV's structure with plain features) is the network the authors' PyTorch
 # figures in benchmarks/RESULTS.md were taken on.
@@ -63,11 +62,9 @@ def main() -> None:
             print(f"{row['preset']:<20}" + "".join(f"{row[c + '_s'] * 1e3:>10.0f}ms"
                                                    for c in cols)
                   + f"{row['whole_over_sum']:>11.2f}", flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "reps": args.reps, "batch": 1, "cameras": 3,
-                               "jax": jax.__version__, "device": str(jax.devices()[0])},
-                              indent=2) + "\n")
+    out = write_json_atomic(args.out, {"rows": rows, "reps": args.reps, "batch": 1,
+                                       "cameras": 3, "jax": jax.__version__,
+                                       "device": str(jax.devices()[0])})
     print(f"wrote {out}")
 
 

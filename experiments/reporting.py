@@ -1,31 +1,23 @@
 """What the experiment scripts write: progress lines, table cells, ``<out>.md`` / ``<out>.json``,
-sections of ``RESULTS.md`` and the prediction figures. Every file is written atomically
-(:func:`gijax.io.paths.write_bytes_atomic`), so an interrupted script never leaves half a table.
+sections of ``RESULTS.md`` and the prediction figures. Every file is written atomically by
+:mod:`gijax.io.paths` (``write_text``, ``write_json`` and ``save_png`` are its writers under
+the names the scripts use), so an interrupted script never leaves half a table.
 """
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
 import numpy as np
 
-from gijax.io.paths import write_bytes_atomic
+from gijax.io.paths import save_figure_atomic as save_png
+from gijax.io.paths import write_json_atomic as write_json
+from gijax.io.paths import write_text_atomic as write_text
 
 
 def log(msg: str) -> None:
     print(msg, flush=True)
-
-
-def write_text(path: Path, text: str) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes_atomic(path, text.encode())
-
-
-def write_json(path: Path, obj) -> None:
-    write_text(path, json.dumps(obj, indent=2, allow_nan=True) + "\n")
 
 
 def read_json(path: Path):
@@ -72,15 +64,6 @@ def publish_section(results_md: Path, section: str, body: str, figures) -> None:
             body = body.replace(f"]({fig.name})", f"]({fig.resolve().relative_to(base)})")
     update_results_section(results_md, section, body)
     log(f"updated the {section} section of {results_md}")
-
-
-def save_png(fig, path: Path, dpi: int) -> None:
-    """A matplotlib figure as a PNG file (rendered in memory, then written atomically)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes_atomic(path, buf.getvalue())
 
 
 def save_figure(path: Path, sample: dict, panels: list, title: str) -> None:

@@ -11,12 +11,13 @@ learned prediction on the training rig.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from pathlib import Path
 
 import numpy as np
+
+from gijax.io.paths import save_figure_atomic, write_json_atomic
 
 # The bundled model the demo runs unless told otherwise (gijax/assets, see 'gijax models').
 DEFAULT_MODEL = "G16VV-cpu"
@@ -126,8 +127,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     colours = np.clip(res["colour"][keep] * 255.0 + 0.5, 0, 255).astype(np.uint8)
     write_ply(str(out_dir / "points.ply"), points, colours)
     _figure(out_dir / "demo.png", panels, train_cand)
-    with open(out_dir / "demo.json", "w") as f:
-        json.dump({"seed": seed, "model": str(model), "table": table}, f, indent=2)
+    write_json_atomic(out_dir / "demo.json", {"seed": seed, "model": str(model), "table": table})
     print(format_table(table, seed))
     print(model_note(model, config.name))
     print(f"wrote {out_dir / 'demo.png'}, {out_dir / 'points.ply'}, {out_dir / 'demo.json'}")
@@ -212,7 +212,7 @@ def _figure(path: Path, panels, candidates) -> None:
     fig.colorbar(im, cax=cax, orientation="horizontal", label="inverse distance (1/m)")
     cax = fig.add_axes([0.56, 0.025, 0.38, 0.012])
     fig.colorbar(em, cax=cax, orientation="horizontal", label="absolute error (1/m)")
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        save_figure_atomic(fig, path, dpi=80)
+    finally:
+        plt.close(fig)

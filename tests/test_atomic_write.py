@@ -136,18 +136,88 @@ def test_rig_file_and_mask_are_readable_by_others(tmp_path):
     assert float(np.asarray(back.masks[1]).sum()) == 16 * 12 - 3 * 4
 
 
-def test_dataset_png_and_colour_map_are_readable_by_others(tmp_path):
-    from gijax.data import pngio
+def test_dataset_and_colour_map_are_readable_by_others(tmp_path):
+    from test_data_format import PANO, synthetic_sample, tiny_rig
+
+    from gijax.data.writer import write_dataset
     from gijax.viz.colormap import save_panorama_png
 
+    rig = tiny_rig()
     with umask(0o022):
-        pngio.atomic_write_bytes(tmp_path / "d.png", b"\x89PNG fake", durable=True)
-        pngio.atomic_write_bytes(tmp_path / "e.png", b"\x89PNG fake")
+        write_dataset(tmp_path / "ds", lambda i: synthetic_sample(rig, i), rig, PANO,
+                      num_samples=1, durable=True)
         save_panorama_png(str(tmp_path / "c.png"), np.linspace(0, 1, 32).reshape(4, 8),
                           "t", 0.0, 1.0, dpi=20)
-    assert {n: mode(tmp_path / n) for n in names(tmp_path)} == {
-        "c.png": 0o644, "d.png": 0o644, "e.png": 0o644}
+    files = [p for p in (tmp_path / "ds").rglob("*") if p.is_file() and "lock" not in p.name]
+    assert len(files) == 1 + 1 + 4 + 1 + 3 * 3 + 1   # manifest, metadata, rig, CSV, PNGs
+    assert {mode(p) for p in files} == {0o644} and mode(tmp_path / "c.png") == 0o644
     assert (tmp_path / "c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def _figure():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(1, 1))
+    ax.plot([0, 1], [1, 0])
+    return fig
+
+
+def test_format_writers_round_trip_with_the_umask_mode(tmp_path):
+    import cv2
+
+    from gijax.io.paths import save_figure_atomic, save_npy_atomic, write_json_atomic, \
+        write_png_atomic
+
+    array = np.arange(6, dtype=np.float32).reshape(2, 3)
+    rgb = np.zeros((2, 3, 3), np.uint8)
+    rgb[0, 0] = (255, 0, 0)                       # red, stored as OpenCV's BGR
+    deep = np.array([[0, 1, 65535]], np.uint16)
+    with umask(0o022):
+        write_json_atomic(tmp_path / "sub" / "a.json", {"x": [1, 2.5]})   # makes the folder
+        save_npy_atomic(tmp_path / "b.npy", array)
+        write_png_atomic(tmp_path / "c.png", rgb)
+        write_png_atomic(tmp_path / "d.png", deep)
+        fig = _figure()
+        save_figure_atomic(fig, tmp_path / "e.png", dpi=20)
+    assert names(tmp_path) == ["b.npy", "c.png", "d.png", "e.png", "sub"]
+    assert (tmp_path / "sub" / "a.json").read_text() == '{\n  "x": [\n    1,\n    2.5\n  ]\n}\n'
+    np.testing.assert_array_equal(np.load(tmp_path / "b.npy"), array)
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "c.png"))[0, 0], [0, 0, 255])
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "d.png"), cv2.IMREAD_UNCHANGED), deep)
+    assert (tmp_path / "e.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert {mode(p) for p in tmp_path.rglob("*") if p.is_file()} == {0o644}
+
+
+def test_a_writer_that_fails_midway_leaves_no_partial_file(tmp_path, monkeypatch):
+    """Each writer is made to fail after it has written part of its temporary: the destination
+    keeps its old content (or stays absent) and no temporary is left."""
+    from gijax.io import paths
+
+    def half_then_fail(tmp, *args, **kwargs):
+        Path(tmp).write_bytes(b"half")
+        raise OSError("disk full")
+
+    (tmp_path / "old.npy").write_bytes(b"old")
+    monkeypatch.setattr(np, "save", half_then_fail)
+    with pytest.raises(OSError, match="disk full"):
+        paths.save_npy_atomic(tmp_path / "old.npy", np.zeros(3))
+    fig = _figure()
+    monkeypatch.setattr(fig, "savefig", half_then_fail)
+    with pytest.raises(OSError, match="disk full"):
+        paths.save_figure_atomic(fig, tmp_path / "new.png")
+    real_fsync = os.fsync
+
+    def failing_fsync(fd):                       # the content is written, the flush fails
+        raise OSError("I/O error")
+
+    monkeypatch.setattr(os, "fsync", failing_fsync)
+    with pytest.raises(OSError, match="I/O error"):
+        paths.write_json_atomic(tmp_path / "new.json", {"a": 1})
+    monkeypatch.setattr(os, "fsync", real_fsync)
+    assert names(tmp_path) == ["old.npy"] and (tmp_path / "old.npy").read_bytes() == b"old"
 
 
 def test_run_config_bench_report_and_point_cloud_are_readable_by_others(tmp_path):

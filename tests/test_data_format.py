@@ -113,10 +113,10 @@ def test_write_read_bit_exact(rig, dataset):
     assert reader.pano == PANO
 
 
-@pytest.mark.parametrize("source", ["metadata", "rig_yaml"])
+@pytest.mark.parametrize("source", ["reader", "rig_yaml"])
 def test_rig_round_trip_bit_exact(rig, dataset, source):
-    """The rig comes back exactly from metadata + frame graph, and from rig/rig.yaml."""
-    if source == "metadata":
+    """The rig comes back exactly through the reader, and from rig/rig.yaml (its one copy)."""
+    if source == "reader":
         back = DatasetReader(dataset).rig
     else:
         back = load_rig(dataset / "rig/rig.yaml")
@@ -131,6 +131,78 @@ def test_rig_round_trip_bit_exact(rig, dataset, source):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     for f in ("x", "y", "radius", "z_min", "z_max"):
         assert np.float32(getattr(back.occluder, f)) == np.float32(getattr(rig.occluder, f))
+
+
+def test_rig_is_stored_once(rig, dataset):
+    """rig/rig.yaml is the dataset's only description of its rig: no frame graph, no cameras,
+    poses or occluder in metadata.json, and the manifest names the rig file."""
+    names = sorted(p.name for p in dataset.iterdir())
+    assert names == ["manifest.json", "metadata.json", "rig", "traj_0000", "traj_0001"]
+    assert sorted(p.name for p in (dataset / "rig").iterdir()) == [
+        "rig.yaml", "rig_cam0_mask.png", "rig_cam1_mask.png", "rig_cam2_mask.png"]
+    meta = json.loads((dataset / "metadata.json").read_text())
+    assert sorted(meta) == ["distance_range", "encodings", "panorama", "sky_distance"]
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    assert (manifest["version"], manifest["rig"]) == (2, "rig/rig.yaml")
+    assert "frame_graph" not in manifest
+
+
+def _as_version_1(root: Path, rig) -> None:
+    """Rewrite a dataset as format version 1 wrote it: the rig also in metadata.json (cameras,
+    occluder) and frame_graph.json (camera-to-rig poses, panorama centre)."""
+    manifest = json.loads((root / "manifest.json").read_text())
+    manifest.update(version=1, frame_graph="frame_graph.json")
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    meta = json.loads((root / "metadata.json").read_text())
+    meta["cameras"] = [{"name": n, "model": "equidistant", "width": SIZE, "height": SIZE,
+                        "intrinsics": {k: float(getattr(c, k)) for k in ("fx", "fy", "cx", "cy")},
+                        "fov_rad": float(c.fov), "mask": f"rig/rig_{n}_mask.png"}
+                       for n, c in zip(rig.names, rig.cameras)]
+    meta["occluder"] = {"type": "cylinder", "x": 0.0, "y": 0.0, "radius": float(np.float32(0.05)),
+                        "z_min": 0.0, "z_max": float(np.float32(0.1))}
+    (root / "metadata.json").write_text(json.dumps(meta))
+    frames = {"rig": {"parent": None},
+              "pano": {"parent": "rig", "rotation": np.eye(3).tolist(),
+                       "translation": np.asarray(rig.reference, np.float64).tolist()}}
+    for i, n in enumerate(rig.names):
+        frames[n] = {"parent": "rig", "rotation": np.eye(3).tolist(),
+                     "translation": np.asarray(rig.translations[i], np.float64).tolist()}
+    (root / "frame_graph.json").write_text(json.dumps({"frames": frames}))
+
+
+def test_version_1_datasets_read_and_copies_that_disagree_are_refused(rig, dataset, tmp_path):
+    root = _copy(dataset, tmp_path)
+    _as_version_1(root, rig)
+    back = DatasetReader(root)
+    assert fmt.rig_differences(back.rig, load_rig(dataset / "rig/rig.yaml")) == []
+    np.testing.assert_array_equal(np.asarray(back.rig.translations),
+                                  np.asarray(rig.translations, np.float32))
+    np.testing.assert_array_equal(back[1]["images"], synthetic_sample(rig, 1)["images"])
+    with pytest.raises(ValueError, match=r"format version 1 .* use a new output folder"):
+        DatasetWriter(root, rig, PANO)
+    graph = json.loads((root / "frame_graph.json").read_text())
+    graph["frames"]["cam1"]["translation"][0] += 0.001
+    (root / "frame_graph.json").write_text(json.dumps(graph))
+    with pytest.raises(ValueError) as exc:
+        DatasetReader(root)
+    msg = str(exc.value)
+    assert "\n" not in msg and "translations" in msg and "disagree" in msg
+    assert "frame_graph.json" in msg and str(root / "rig" / "rig.yaml") in msg
+    (root / "rig" / "rig.yaml").unlink()            # version 1 before it held a rig file
+    manifest = json.loads((root / "manifest.json").read_text())
+    del manifest["rig"]
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    moved = DatasetReader(root).rig
+    assert float(moved.translations[1][0]) == np.float32(float(np.float32(rig.translations[1][0]))
+                                                         + 0.001)
+
+
+def test_resume_refuses_another_rig(rig, dataset, tmp_path):
+    root = _copy(dataset, tmp_path)
+    other = rig.replace(translations=np.asarray(rig.translations) * 1.01)
+    with pytest.raises(ValueError, match=r"rig\.yaml differs from the rig being written "
+                                         r"\(translations\)"):
+        DatasetWriter(root, other, PANO)
 
 
 def test_on_disk_conventions(rig, dataset):
@@ -312,19 +384,19 @@ def test_interrupted_write_resumes_to_identical_data(rig, dataset, tmp_path, mon
 
     out = tmp_path / "resumed"
     kw = dict(num_samples=6, trajectory_size=4, seeds=lambda i: 10 * i)
-    real_write = pngio.atomic_write_bytes
+    real_write = writer_mod.write_bytes_atomic
     count = {"n": 0}
 
     # Crash 1: in the middle of writing a file of sample 2 (its 6th file), leaving a partial.
-    def dying_write(path, data, durable=False):
+    def dying_write(path, data, **kw):
         if "000002" in Path(path).name:
             count["n"] += 1
             if count["n"] == 6:
                 Path(str(path) + pngio.PARTIAL_SUFFIX).write_bytes(data[: len(data) // 2])
                 raise Crash("power cut")
-        real_write(path, data, durable)
+        return real_write(path, data, **kw)
 
-    monkeypatch.setattr(writer_mod.pngio, "atomic_write_bytes", dying_write)
+    monkeypatch.setattr(writer_mod, "write_bytes_atomic", dying_write)
     with pytest.raises(Crash):
         write_dataset(out, make, rig, PANO, **kw)
     with pytest.raises(ValueError, match=r"incomplete: 2 of the 6 samples"):
@@ -335,7 +407,7 @@ def test_interrupted_write_resumes_to_identical_data(rig, dataset, tmp_path, mon
     assert list((out / "traj_0000").rglob("*.partial"))
 
     # Crash 2: after every file and the CSV of sample 4 exist, before the manifest lists them.
-    monkeypatch.setattr(writer_mod.pngio, "atomic_write_bytes", real_write)
+    monkeypatch.setattr(writer_mod, "write_bytes_atomic", real_write)
     monkeypatch.setattr(DatasetWriter, "_write_manifest",
                         lambda self: (_ for _ in ()).throw(Crash("killed")))
     with pytest.raises(Crash):

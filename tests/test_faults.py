@@ -25,7 +25,7 @@ import pytest
 from gijax.data.check import check_dataset
 from gijax.data.reader import DatasetReader
 from gijax.io.rigfile import save_rig
-from gijax.train.tbwriter import event_step, read_records
+from gijax.io.events import read_events
 from test_data_format import _tree, tiny_rig
 from test_train_faults import CACHE, child_env, losses, run_child, script  # noqa: F401 - fixture
 
@@ -52,9 +52,9 @@ def tb_loss_steps(run: Path) -> list[int]:
     """The steps of every ``train/loss`` scalar in the run's TensorBoard files."""
     steps = []
     for path in sorted((run / "tb").glob("events.out.tfevents.*")):
-        for rec in read_records(path.read_bytes()):
-            if b"train/loss" in rec:
-                steps.append(event_step(rec))
+        for event in read_events(path):
+            if any(v.tag == "train/loss" for v in event.summary.value):
+                steps.append(event.step)
     return steps
 
 

@@ -172,7 +172,8 @@ def test_read_image_gives_rgb_uint8_from_any_file(tmp_path):
     """cv2 writes BGR: the reader returns RGB, drops alpha, repeats grey, scales 16 bits."""
     import cv2
 
-    from gijax.data.images import read_image, read_mask
+    from gijax.data.images import read_image
+    from gijax.io.masks import read_mask
 
     rgb = np.zeros((2, 3, 3), np.uint8)
     rgb[..., 0], rgb[..., 1], rgb[..., 2] = 10, 20, 30

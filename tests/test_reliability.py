@@ -416,7 +416,7 @@ def test_damaged_png_is_found_before_training(dataset, tmp_path, capfd):
 # ------------------------------------------------------------------ 9: logs after a resume
 
 def test_logs_keep_one_record_per_step_after_a_resume(tmp_path):
-    from gijax.train.tbwriter import EventWriter, event_step, read_records
+    from gijax.io.events import EventWriter, read_events
     from gijax.train.trainer import METRICS_FILE, drop_logs_after
 
     run = tmp_path / "run"
@@ -436,5 +436,5 @@ def test_logs_keep_one_record_per_step_after_a_resume(tmp_path):
     kept = [json.loads(line) for line in (run / METRICS_FILE).read_text().splitlines()]
     assert [(r["step"], r.get("split")) for r in kept] == [(1, None), (2, None), (3, None),
                                                            (3, "val")]
-    steps = [event_step(r) for r in read_records(tb.path.read_bytes())]
+    steps = [e.step for e in read_events(tb.path)]
     assert steps == [0, 1, 2, 3]                               # file header, then steps 1-3

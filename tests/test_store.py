@@ -15,7 +15,7 @@ from gijax.store import load_model, resolve_model_path
 from gijax.store.assets import ASSETS, bundled_names
 from gijax.store.configs import model_config_from_dict
 from gijax.train import step as S
-from gijax.train.checkpoints import CheckpointStore
+from gijax.store.checkpoints import CheckpointStore
 from gijax.train.config import TrainConfig, save_run_config
 
 TINY = dict(feature_blocks=[1, 1], unet_base=8, feature_channels=4, unet_in=4)

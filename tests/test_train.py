@@ -3,13 +3,13 @@
 import json
 import os
 import shlex
-import struct
 from pathlib import Path
 
 import jax
 import numpy as np
 import pytest
 
+from test_events import event_file_records
 from test_train_faults import CACHE, CHILD
 
 # The helpers of the child script (tiny network overrides, in-memory samples, rig) run here too.
@@ -84,21 +84,6 @@ def _write_tiny_dataset(root: Path, n: int, seed: int):
     return rig
 
 
-def _event_records(path: Path):
-    """TFRecord frames of an event file, checking both masked CRC-32C values."""
-    from gijax.train.tbwriter import masked_crc
-
-    data, out, pos = path.read_bytes(), [], 0
-    while pos < len(data):
-        (n,) = struct.unpack_from("<Q", data, pos)
-        assert struct.unpack_from("<I", data, pos + 8)[0] == masked_crc(data[pos:pos + 8])
-        payload = data[pos + 12:pos + 12 + n]
-        assert struct.unpack_from("<I", data, pos + 12 + n)[0] == masked_crc(payload)
-        out.append(payload)
-        pos += 16 + n
-    return out
-
-
 @pytest.mark.usefixtures("quick_compiles_here")
 def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     from gijax.cli import main
@@ -131,9 +116,12 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     best_mae = min(v["mae"] for v in vals)
     assert [v["mae"] for v in vals if v["step"] == best_step] == [best_mae]
     events = list((run / "tb").glob("events.out.tfevents.*"))
-    payloads = _event_records(events[0])
-    assert b"brain.Event:2" in payloads[0] and any(b"val/mae" in p for p in payloads)
-    assert any(b"\x89PNG" in p for p in payloads)                # sample prediction images
+    recorded = [e for path in events for e in event_file_records(path)]
+    assert recorded[0].file_version == "brain.Event:2"
+    tags = {(v.tag, e.step) for e in recorded for v in e.summary.value}
+    assert {("val/mae", v["step"]) for v in vals} <= tags
+    images = [v.image for e in recorded for v in e.summary.value if v.HasField("image")]
+    assert images and all(i.encoded_image_string.startswith(b"\x89PNG") for i in images)
     assert len(list((run / "samples").glob("*.png"))) == 4
 
     out_json = tmp_path / "eval.json"
@@ -190,7 +178,7 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
 def test_all_checkpoints_corrupt_is_a_clear_error(tmp_path):
     import jax.numpy as jnp
 
-    from gijax.train.checkpoints import CheckpointStore
+    from gijax.store.checkpoints import CheckpointStore
 
     store = CheckpointStore(tmp_path, keep=2, best_metric=None)
     state = {"w": jnp.arange(4.0)}
@@ -202,15 +190,6 @@ def test_all_checkpoints_corrupt_is_a_clear_error(tmp_path):
     with pytest.warns(RuntimeWarning, match="unreadable"):
         with pytest.raises(ValueError, match="no readable checkpoint"):
             store.restore_latest(abstract)
-
-
-def test_crc32c_and_event_encoding():
-    from gijax.train.tbwriter import crc32c, scalar_value
-
-    assert crc32c(b"123456789") == 0xE3069283                   # the standard check value
-    assert crc32c(b"") == 0
-    # Summary.Value{tag: "a", simple_value: 1.0}, field by field
-    assert scalar_value("a", 1.0) == b"\x0a\x08" + b"\x0a\x01a" + b"\x15" + struct.pack("<f", 1.0)
 
 
 def test_grad_accum_and_bf16_step_agree_with_plain_step():

@@ -6,6 +6,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from gijax.io.paths import save_figure_atomic
+
 
 def scaling_figure(result: dict, path: str | os.PathLike, rtss: dict | None = None) -> Path:
     """Draw the ``scaling`` case (and the RTSS per-camera rows, when given) to ``path``."""
@@ -58,10 +60,7 @@ def scaling_figure(result: dict, path: str | os.PathLike, rtss: dict | None = No
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    try:
+        return save_figure_atomic(fig, path, dpi=110)
+    finally:
+        plt.close(fig)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -10,7 +9,7 @@ from typing import Callable, Sequence, Union
 
 import numpy as np
 
-from gijax.io.paths import write_text_atomic
+from gijax.io.paths import write_json_atomic, write_text_atomic
 
 # A column: (header, key) or (header, key, format spec or callable value -> str).
 Column = Union[tuple[str, str], tuple[str, str, Union[str, Callable]]]
@@ -31,22 +30,14 @@ def _plain(obj):
     return obj
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, text)
-
-
 def write_json(path: str | os.PathLike, obj) -> Path:
     """Write ``obj`` as indented JSON (numpy values converted, non-finite floats as null)."""
-    path = Path(path)
-    _write_atomic(path, json.dumps(_plain(obj), indent=2) + "\n")
-    return path
+    return write_json_atomic(path, _plain(obj))
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
-    path = Path(path)
-    _write_atomic(path, text if text.endswith("\n") else text + "\n")
-    return path
+    """Write ``text``, ending in a newline."""
+    return write_text_atomic(path, text if text.endswith("\n") else text + "\n")
 
 
 def format_value(value, spec: Union[str, Callable, None] = None) -> str:

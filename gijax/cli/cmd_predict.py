@@ -86,8 +86,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from gijax.data.images import read_image, read_mask
-    from gijax.io.masks import warn_if_unmasked
+    from gijax.data.images import read_image
+    from gijax.io.masks import read_mask, warn_if_unmasked
     from gijax.io.paths import check_output_dir
     from gijax.io.rigfile import load_rig
 

@@ -91,6 +91,8 @@ def run_engine_cmd(args) -> int:
     dist = outputs["distance"][0]
     print(f"distance {dist.shape}: median {np.median(dist):.3f} m")
     if args.out:
-        np.save(args.out, dist.astype(np.float32))
+        from gijax.io.paths import save_npy_atomic
+
+        save_npy_atomic(args.out, dist.astype(np.float32))
         print(f"wrote {args.out}")
     return 0

@@ -19,6 +19,7 @@ from typing import Callable, Optional
 from gijax.data import format as fmt
 from gijax.data import pngio
 from gijax.io.lock import LOCK_FILE, describe_holder, holder_of
+from gijax.io.masks import read_mask
 
 
 @dataclasses.dataclass
@@ -65,7 +66,7 @@ def _check_file(path: Path, column: str, shapes: dict, where: str) -> None:
             raise ValueError(f"{path}: distances must be >= 0 m; found minimum {float(d.min())} "
                              f"({where})")
     elif kind == "mask":
-        pngio.read_mask(path, hw, where)
+        read_mask(path, hw, where)
     else:
         raise ValueError(f"unknown column {column!r} ({where})")
 
@@ -74,7 +75,7 @@ def check_dataset(root, progress: Callable[[int, int], None] | None = None) -> D
     """Check every file of the dataset at ``root``; ``progress(done, total)`` after each sample.
 
     Raises (FileNotFoundError / ValueError) only when the dataset cannot be opened at all
-    (manifest, metadata, frame graph, rig masks or a file list unreadable); problems with
+    (manifest, metadata, rig file, rig masks or a file list unreadable); problems with
     sample files are collected in the result.
     """
     from gijax.data.reader import DatasetReader

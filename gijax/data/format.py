@@ -1,22 +1,24 @@
-"""The on-disk dataset format: layout, JSON documents, rig serialisation, CSV file lists.
+"""The on-disk dataset format: layout, JSON documents, the rig, CSV file lists.
 
 Layout (see docs/data.md for an example tree)::
 
     ROOT/
       manifest.json        format name and version, the other documents, the trajectories
-      metadata.json        cameras (model, intrinsics, size, fov, rig mask file), panorama,
-                           distance range, sky value, occluder, encodings
-      frame_graph.json     camera-to-rig poses of every camera and of the panorama centre
-      rig/rig.yaml         the same rig as a gijax rig file (gijax.io.rigfile.load_rig reads it)
+      metadata.json        panorama, distance range, sky value, encodings
+      rig/rig.yaml         the rig: a gijax rig file (cameras, poses, panorama frame, occluder)
       rig/rig_<cam>_mask.png  the rig's static self-occlusion masks (when the rig has them)
       traj_0000/files.csv  one row per frame, one column per file (paths relative to traj_0000/)
       traj_0000/<cam>/rgb/000000.png, <cam>/distance/000000.png, <cam>/mask/000000.png
       traj_0000/pano/distance/000000.png
 
-The rig round-trips bit-exactly (every float32 leaf is written as the shortest decimal that
-reads back to the same float32). Trajectory CSVs are the commit record: a sample exists once
-its row is in a CSV listed by the manifest, and both are replaced atomically after all of the
-sample's files exist.
+The rig is stored once, in ``rig/rig.yaml`` (:mod:`gijax.io.rigfile`), and round-trips
+bit-exactly (every float32 leaf is written as the shortest decimal that reads back to the same
+float32). Datasets of format version 1 also described it in ``metadata.json`` (cameras,
+occluder) and ``frame_graph.json`` (poses); they are still read, from those documents, and when
+they hold ``rig/rig.yaml`` too the two copies must agree exactly.
+
+Trajectory CSVs are the commit record: a sample exists once its row is in a CSV listed by the
+manifest, and both are replaced atomically after all of the sample's files exist.
 """
 
 from __future__ import annotations
@@ -32,14 +34,16 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from gijax.data import pngio
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.occluder import FAR, Cylinder
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig
+from gijax.io.masks import read_mask
 
 FORMAT_NAME = "gijax-multi-fisheye"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+# Version 1 described the rig in metadata.json and frame_graph.json (and, later, rig/rig.yaml).
+FORMAT_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 METADATA = "metadata.json"
 FRAME_GRAPH = "frame_graph.json"
@@ -109,24 +113,6 @@ def dumps(doc: dict) -> bytes:
 
 # ---------------------------------------------------------------------------- rig <-> JSON
 
-def _floats(a) -> Any:
-    """float32 (or float64) array -> nested lists of Python floats, exact."""
-    return np.asarray(a, np.float64).tolist()
-
-
-def camera_to_json(cam, name: str, mask_file: str | None) -> dict:
-    return {
-        "name": name,
-        "model": cam.MODEL,
-        "width": int(cam.width),
-        "height": int(cam.height),
-        "intrinsics": cam_lib.camera_params(cam),
-        "fov_rad": float(cam.fov),
-        "fov_deg": math.degrees(float(cam.fov)),
-        "mask": mask_file,
-    }
-
-
 def camera_from_json(doc: dict, path) -> Any:
     model = require(doc, "model", path, str)
     if model not in cam_lib.CAMERA_MODELS:
@@ -145,46 +131,21 @@ def camera_from_json(doc: dict, path) -> Any:
                height=int(require(doc, "height", path, int)))
 
 
-def metadata_doc(rig: Rig, pano: Panorama, distance_range=DEFAULT_DISTANCE_RANGE,
+def metadata_doc(pano: Panorama, distance_range=DEFAULT_DISTANCE_RANGE,
                  sky_distance: float = FAR) -> dict:
-    """metadata.json for a rig and a ground-truth panorama."""
-    names = list(rig.names)
-    # Mask file names are the ones gijax.io.rigfile.save_rig writes beside rig/rig.yaml.
-    cams = [camera_to_json(c, n, None if m is None else f"{RIG_FOLDER}/rig_{n}_mask.png")
-            for c, n, m in zip(rig.cameras, names, rig.masks)]
-    occ = None
-    if rig.occluder is not None:
-        occ = {"type": "cylinder", **{f: float(getattr(rig.occluder, f))
-                                      for f in ("x", "y", "radius", "z_min", "z_max")}}
+    """metadata.json for a ground-truth panorama (the rig is ``rig/rig.yaml``)."""
     return {
-        "cameras": cams,
         "panorama": {"height": pano.height, "width": pano.width, "lat_min_rad": pano.lat_min,
                      "lat_max_rad": pano.lat_max, "lat_min_deg": math.degrees(pano.lat_min),
                      "lat_max_deg": math.degrees(pano.lat_max)},
         "distance_range": [float(distance_range[0]), float(distance_range[1])],
         "sky_distance": float(sky_distance),
-        "occluder": occ,
         "encodings": {
             "rgb": "8-bit 3-channel PNG, RGB (stored in OpenCV's BGR channel order)",
             "distance": "float32 metres, little-endian bytes packed into an 8-bit 4-channel PNG",
             "mask": "8-bit 1-channel PNG, 255 = valid (sees the world), 0 = invalid",
         },
     }
-
-
-def frame_graph_doc(rig: Rig) -> dict:
-    """frame_graph.json: each frame's pose in its parent (child-to-parent, metres)."""
-    frames = {RIG_FRAME: {"parent": None}}
-    for i, name in enumerate(rig.names):
-        frames[name] = {"parent": RIG_FRAME, "rotation": _floats(rig.rotations[i]),
-                        "translation": _floats(rig.translations[i])}
-    # The panorama frame: its z axis is the panorama's pole, its x axis longitude 0.
-    rot = np.eye(3) if rig.panorama_rotation is None else rig.panorama_rotation
-    frames[PANO_FRAME] = {"parent": RIG_FRAME, "rotation": _floats(rot),
-                          "translation": _floats(rig.reference)}
-    return {"convention": "child-to-parent: p_parent = R @ p_child + t; camera frame x right, "
-                          "y down, z forward; metres",
-            "frames": frames}
 
 
 def check_names(names) -> None:
@@ -197,7 +158,8 @@ def check_names(names) -> None:
 
 
 def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
-    """Rebuild the Rig from metadata.json, frame_graph.json and the rig mask PNGs."""
+    """The rig of a format-version-1 dataset, from its metadata.json, frame_graph.json and the
+    rig mask PNGs."""
     meta_path, graph_path = root / METADATA, root / FRAME_GRAPH
     cam_docs = require(meta, "cameras", meta_path, list)
     if not cam_docs:
@@ -221,10 +183,8 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
         mask_file = doc.get("mask")
         mask = None
         if mask_file:
-            mask = jnp.asarray(pngio.read_mask(inside(root, root, mask_file,
-                                                      f"{where} field 'mask'"),
-                                               (cam.height, cam.width),
-                                               f"rig mask of camera {name!r}"), jnp.float32)
+            mask = jnp.asarray(read_mask(inside(root, root, mask_file, f"{where} field 'mask'"),
+                                         (cam.height, cam.width), f"rig mask of camera {name!r}"))
         cams.append(cam)
         rots.append(rot)
         trans.append(t)
@@ -345,7 +305,6 @@ def manifest_doc(trajectories: list[str], trajectory_size: int, generator: dict 
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
         "metadata": METADATA,
-        "frame_graph": FRAME_GRAPH,
         "rig": RIG_FILE,
         "trajectory_size": int(trajectory_size),
         "trajectories": [{"name": t, "file_list": f"{t}/{FILE_LIST}"} for t in trajectories],
@@ -379,5 +338,84 @@ def read_manifest(root: Path) -> dict:
         require(t, "name", f"{path} trajectories[{k}]", str)
         require(t, "file_list", f"{path} trajectories[{k}]", str)
     require(doc, "metadata", path, str)
-    require(doc, "frame_graph", path, str)
+    version = manifest_version(doc, path)
+    if version == 1:
+        require(doc, "frame_graph", path, str)
+        if "rig" in doc:
+            require(doc, "rig", path, str)
+    else:
+        require(doc, "rig", path, str)
     return doc
+
+
+def manifest_version(manifest: dict, path) -> int:
+    """The manifest's format version, checked (1 when absent: the first datasets had none)."""
+    version = manifest.get("version", 1)
+    if isinstance(version, bool) or version not in FORMAT_VERSIONS:
+        raise ValueError(f"{path}: format version {version!r} is not one this gijax reads "
+                         f"({', '.join(map(str, FORMAT_VERSIONS))})")
+    return int(version)
+
+
+# ---------------------------------------------------------------------------- the rig
+
+def _same(a, b) -> bool:
+    a, b = np.asarray(a, np.float32), np.asarray(b, np.float32)
+    return a.shape == b.shape and bool(np.array_equal(a, b))
+
+
+def rig_differences(a: Rig, b: Rig) -> list[str]:
+    """What differs between two rigs, compared float32-exactly (empty when they are the same):
+    names, camera models, sizes, intrinsics and fields of view, poses, panorama centre and
+    orientation (None is the identity), occluder and masks (None and all-valid differ)."""
+    if a.names != b.names:
+        return [f"camera names {list(a.names)} vs {list(b.names)}"]
+    found = []
+    for name, ca, cb, ma, mb in zip(a.names, a.cameras, b.cameras, a.masks, b.masks):
+        if (type(ca), ca.width, ca.height) != (type(cb), cb.width, cb.height):
+            found.append(f"camera {name!r} model or size")
+            continue
+        params = [k for k in (*ca.PARAMS, "fov") if not _same(getattr(ca, k), getattr(cb, k))]
+        if params:
+            found.append(f"camera {name!r} intrinsics {params}")
+        if (ma is None) != (mb is None) or (ma is not None and not _same(ma, mb)):
+            found.append(f"camera {name!r} mask")
+    for field in ("rotations", "translations", "reference"):
+        if not _same(getattr(a, field), getattr(b, field)):
+            found.append(field)
+    rot_a, rot_b = (np.eye(3) if r is None else r for r in (a.panorama_rotation,
+                                                             b.panorama_rotation))
+    if not _same(rot_a, rot_b):
+        found.append("panorama_rotation")
+    occ = ("x", "y", "radius", "z_min", "z_max")
+    if (a.occluder is None) != (b.occluder is None) or (
+            a.occluder is not None
+            and not all(_same(getattr(a.occluder, f), getattr(b.occluder, f)) for f in occ)):
+        found.append("occluder")
+    return found
+
+
+def read_rig(root: Path, manifest: dict, metadata: dict) -> Rig:
+    """The rig of the dataset at ``root``: ``rig/rig.yaml`` (the file the manifest's ``rig``
+    field names). A version-1 dataset's rig comes from metadata.json and frame_graph.json; when
+    it holds a rig file too, a copy that differs is refused in one line naming both files and
+    what differs."""
+    from gijax.io.rigfile import load_rig
+
+    path = root / MANIFEST
+    rig_path = None
+    if "rig" in manifest:
+        rig_path = inside(root, root, manifest["rig"], f"{path} field 'rig'")
+    if manifest_version(manifest, path) >= 2:
+        if not rig_path.is_file():
+            raise FileNotFoundError(f"missing rig file {rig_path} (named by {path})")
+        return load_rig(rig_path)
+    graph_path = inside(root, root, manifest["frame_graph"], f"{path} field 'frame_graph'")
+    rig = rig_from_docs(root, metadata, load_json(graph_path, "frame graph"))
+    if rig_path is not None and rig_path.is_file():
+        diff = rig_differences(rig, load_rig(rig_path))
+        if diff:
+            raise ValueError(f"{root}: the rig in {METADATA} and {graph_path.name} differs from "
+                             f"{rig_path} ({'; '.join(diff)}); the dataset's two copies of its "
+                             f"rig disagree, so neither can be trusted")
+    return rig

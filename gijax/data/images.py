@@ -1,8 +1,9 @@
-"""Reading camera images and masks from ordinary image files (PNG, JPEG, ...) for inference.
+"""Reading camera images from ordinary image files (PNG, JPEG, ...) for inference.
 
 Dataset images go through :mod:`gijax.data.reader`; this is for the files a user points a
-command at (``gijax predict --images``, ``gijax trt run``), with :func:`fit_images`, the one
-image-size policy of every method (JAX model, ONNX file, classical baseline).
+command at (``gijax predict --images``, ``gijax trt run``; their masks are read by
+:func:`gijax.io.masks.read_mask`), with :func:`fit_images`, the one image-size policy of every
+method (JAX model, ONNX file, classical baseline).
 """
 
 from __future__ import annotations
@@ -38,11 +39,6 @@ def read_image(path: str | os.PathLike, grey: bool = False) -> np.ndarray:
     if img.dtype == np.uint16:
         img = (img / 257.0 + 0.5).astype(np.uint8)
     return np.ascontiguousarray(img[..., ::-1])  # OpenCV reads BGR
-
-
-def read_mask(path: str | os.PathLike) -> np.ndarray:
-    """A validity mask as float32 (h, w): 1 where the file is non-zero, else 0."""
-    return (read_image(path, grey=True) > 0).astype(np.float32)
 
 
 def _size_text(hw) -> str:

@@ -22,6 +22,7 @@ from gijax.data import format as fmt
 from gijax.data import pngio
 from gijax.geometry.occluder import FAR
 from gijax.io.lock import describe_holder, holder_of
+from gijax.io.masks import read_mask
 
 VERIFY_MODES = ("none", "exists", "full")
 
@@ -81,10 +82,7 @@ class DatasetReader(RowReader):
         where = f"{self.root / fmt.MANIFEST}"
         self.metadata = fmt.load_json(fmt.inside(self.root, self.root, self.manifest["metadata"],
                                                  f"{where} field 'metadata'"), "metadata")
-        self.frame_graph = fmt.load_json(
-            fmt.inside(self.root, self.root, self.manifest["frame_graph"],
-                       f"{where} field 'frame_graph'"), "frame graph")
-        self.rig = fmt.rig_from_docs(self.root, self.metadata, self.frame_graph)
+        self.rig = fmt.read_rig(self.root, self.manifest, self.metadata)
         self.pano = fmt.pano_from_metadata(self.metadata, self.root / fmt.METADATA)
         self.names = list(self.rig.names)
         self.distance_range = tuple(self.metadata.get("distance_range",
@@ -172,7 +170,7 @@ class DatasetReader(RowReader):
             distances.append(pngio.read_distance(files[col], hw, where(col)))
             col = f"{name}_mask"
             if col in files:
-                masks.append(pngio.read_mask(files[col], hw, where(col)))
+                masks.append(read_mask(files[col], hw, where(col)).astype(np.uint8))
             elif self._rig_masks[c] is not None:
                 masks.append(self._rig_masks[c])
             else:

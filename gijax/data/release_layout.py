@@ -55,6 +55,7 @@ import numpy as np
 
 from gijax.data import format as fmt
 from gijax.data import pngio
+from gijax.io.png import is_png, read_png
 from gijax.data.reader import VERIFY_MODES, RowReader, Skipped
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.occluder import FAR
@@ -442,10 +443,8 @@ def _read_any(path: Path, where: str, flags=cv2.IMREAD_UNCHANGED) -> np.ndarray:
     suffix = f" ({where})" if where else ""
     if not path.is_file():
         raise FileNotFoundError(f"missing file {path}{suffix}")
-    with open(path, "rb") as f:
-        head = f.read(len(pngio.PNG_SIGNATURE))
-    if head == pngio.PNG_SIGNATURE:
-        image = pngio.read_png(path, where)  # detects truncated PNGs
+    if is_png(path):
+        image = read_png(path, where)  # detects truncated PNGs
         if flags == cv2.IMREAD_GRAYSCALE and image.ndim == 3:
             code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
             image = cv2.cvtColor(image, code)

@@ -26,6 +26,7 @@ from gijax.data import format as fmt
 from gijax.data import pngio
 from gijax.geometry.panorama import Panorama
 from gijax.io.lock import LOCK_FILE, FolderLock
+from gijax.io.paths import write_bytes_atomic
 from gijax.io.rigfile import save_rig
 from gijax.geometry.rig import Rig
 
@@ -40,7 +41,7 @@ class DatasetWriter:
 
     Args:
       root: dataset folder (created when missing).
-      rig: the rig the samples were rendered with; stored in metadata/frame graph/rig masks.
+      rig: the rig the samples were rendered with; stored in rig/rig.yaml and its masks.
       pano: the ground-truth panorama of ``pano_distance``.
       trajectory_size: samples per trajectory folder.
       generator: settings that determine the samples' content (e.g. the render command's
@@ -66,8 +67,7 @@ class DatasetWriter:
         self.names = list(rig.names)
         self.durable = durable
         self.generator = None if generator is None else _comparable(dict(generator))
-        self.meta = fmt.metadata_doc(rig, pano, distance_range)
-        self.graph = fmt.frame_graph_doc(rig)
+        self.meta = fmt.metadata_doc(pano, distance_range)
         self.requested: int | None = None
         self.root.mkdir(parents=True, exist_ok=True)
         self._lock = FolderLock(self.root, "dataset").acquire()
@@ -99,10 +99,9 @@ class DatasetWriter:
             stray = sorted(p.name for p in self.root.iterdir())[:5]
             raise ValueError(f"{self.root} is not empty and has no {fmt.MANIFEST}; refusing to "
                              f"write a dataset there (found {stray})")
-        # The rig file and its mask PNGs (the masks metadata.json points at).
+        # The rig, stored once: the rig file and its mask PNGs.
         save_rig(self.rig, self.root / fmt.RIG_FILE)
         self._write(self.root / fmt.METADATA, fmt.dumps(self.meta))
-        self._write(self.root / fmt.FRAME_GRAPH, fmt.dumps(self.graph))
         self.trajectories: list[str] = []
         self.rows: list[dict] = []
         # The manifest is written last: its presence marks the folder as a dataset.
@@ -114,13 +113,25 @@ class DatasetWriter:
         if manifest.get("format") != fmt.FORMAT_NAME:
             raise ValueError(f"{path}: format {manifest.get('format')!r} is not "
                              f"{fmt.FORMAT_NAME!r}; cannot append to it")
-        for name, want in ((fmt.METADATA, self.meta), (fmt.FRAME_GRAPH, self.graph)):
-            found = fmt.load_json(self.root / name, name)
-            if found != _comparable(want):
-                diff = sorted(k for k in set(found) | set(want)
-                              if found.get(k) != _comparable(want).get(k))
-                raise ValueError(f"{self.root / name} differs from the rig/panorama being "
-                                 f"written (fields {diff}); use a new output folder")
+        version = fmt.manifest_version(manifest, path)
+        if version != fmt.FORMAT_VERSION:
+            raise ValueError(f"{path}: format version {version} (the rig stored in several "
+                             f"documents); this gijax appends only to version "
+                             f"{fmt.FORMAT_VERSION} datasets; use a new output folder")
+        found = fmt.load_json(self.root / fmt.METADATA, fmt.METADATA)
+        want = _comparable(self.meta)
+        if found != want:
+            diff = sorted(k for k in set(found) | set(want) if found.get(k) != want.get(k))
+            raise ValueError(f"{self.root / fmt.METADATA} differs from the panorama being "
+                             f"written (fields {diff}); use a new output folder")
+        # Masks are stored binary (>= 0.5 is valid): compare the rig as it was stored.
+        stored = self.rig.replace(masks=tuple(
+            None if m is None else (np.asarray(m) >= 0.5).astype(np.float32)
+            for m in self.rig.masks))
+        diff = fmt.rig_differences(fmt.read_rig(self.root, manifest, found), stored)
+        if diff:
+            raise ValueError(f"{self.root / fmt.RIG_FILE} differs from the rig being written "
+                             f"({'; '.join(diff)}); use a new output folder")
         old_gen = manifest.get("generator")
         if old_gen != self.generator:
             raise ValueError(f"{path}: the dataset was made with generator settings {old_gen}, "
@@ -154,7 +165,7 @@ class DatasetWriter:
     # -- writing
 
     def _write(self, path: Path, data: bytes) -> None:
-        pngio.atomic_write_bytes(path, data, self.durable)
+        write_bytes_atomic(path, data, suffix=pngio.PARTIAL_SUFFIX, fsync=self.durable)
 
     def _write_manifest(self) -> None:
         doc = fmt.manifest_doc(self.trajectories, self.trajectory_size, self.generator,

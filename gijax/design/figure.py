@@ -11,6 +11,7 @@ import numpy as np
 from gijax.design.objective import camera_counts, layout_pose
 from gijax.design.spec import DesignSpec, Layout
 from gijax.geometry.panorama import Panorama
+from gijax.io.paths import save_figure_atomic
 
 
 def plot_design(layout: Layout, spec: DesignSpec, path, history=None, title: str = "",
@@ -90,10 +91,7 @@ def plot_design(layout: Layout, spec: DesignSpec, path, history=None, title: str
         ax.grid(alpha=0.3, which="both")
     fig.suptitle(title or f"{spec.num_cameras}-camera layout", fontsize=11)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    try:
+        return save_figure_atomic(fig, path, dpi=110, bbox_inches="tight")
+    finally:
+        plt.close(fig)

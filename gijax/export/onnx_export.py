@@ -241,7 +241,6 @@ def read_metadata(proto) -> dict:
 def _save_atomic(proto, path: Path) -> None:
     import onnx
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         onnx.save_model(proto, str(tmp))
 

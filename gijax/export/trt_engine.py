@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gijax.io.paths import write_bytes_atomic
+from gijax.io.paths import write_bytes_atomic, write_json_atomic
 
 
 class TensorRTMissing(RuntimeError):
@@ -134,10 +134,10 @@ def build_engine(onnx_path: str, plan_path: str, fp16: bool = False,
         raise ValueError(f"{onnx_path}: TensorRT {trt.__version__} failed to build an engine "
                          f"(see the log above)")
     seconds = time.perf_counter() - start
-    _write_atomic(Path(plan_path), bytes(plan))
+    write_bytes_atomic(plan_path, bytes(plan))
     info = {"tensorrt": str(trt.__version__), "gpu": _gpu_name(), "onnx": str(onnx_path),
             "fp16": bool(fp16)}
-    _write_atomic(Path(str(plan_path) + ".json"), json.dumps(info, indent=2).encode())
+    write_json_atomic(str(plan_path) + ".json", info)
     return {"plan": str(plan_path), "version": str(trt.__version__), "seconds": seconds,
             "trtexec": trtexec_command(str(onnx_path), str(plan_path), version, fp16,
                                        workspace_mb, max_batch)}
@@ -152,11 +152,6 @@ def _gpu_name() -> str:
         return out.stdout.strip().splitlines()[0] if out.returncode == 0 else ""
     except (OSError, IndexError, subprocess.SubprocessError):
         return ""
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes_atomic(path, data)
 
 
 def load_engine(plan_path: str, trt=None):

@@ -1,5 +1,5 @@
-"""Per-camera rig masks from files: reading a mask PNG, attaching masks to a rig, and the warning
-for a rig used for stereo without them.
+"""Masks from files: the one mask reader (rig files, ``--masks``, datasets), attaching masks to a
+rig, and the warning for a rig used for stereo without them.
 
 A rig mask marks the pixels of one camera that see the world (nonzero) rather than the rig's own
 body (zero). Without one, the body in every image is matched as if it were scene, which pulls
@@ -18,6 +18,7 @@ import numpy as np
 
 from gijax.geometry.layouts import BUILTIN_LAYOUTS
 from gijax.geometry.rig import Rig
+from gijax.io.png import is_png, read_png
 
 IMPORT_HINT = "gijax rig import CALIB --masks m0.png m1.png ... --out rig.yaml"
 
@@ -26,30 +27,42 @@ class UnmaskedRigWarning(UserWarning):
     """A rig whose cameras have no masks is used for stereo (filterable by this category)."""
 
 
-def read_mask(path, cam, label: str) -> np.ndarray:
-    """A mask PNG of ``cam``'s image size as float32 (H, W): 1 where any colour channel is
-    nonzero (alpha ignored), else 0.
+def read_mask(path, hw: tuple[int, int] | None = None, label: str = "") -> np.ndarray:
+    """A mask image as float32 (H, W): 1 where any colour channel is nonzero (alpha ignored),
+    else 0, whatever the bit depth (1-, 8- or 16-bit, grey or colour).
 
-    ``label`` starts every error and names where the mask was asked for (the rig file and camera,
-    or the command-line option and camera). Raises FileNotFoundError for a missing file and
-    ValueError for an unreadable one or one of another size (expected and found sizes, W x H).
+    Every mask of gijax is read here: rig files, ``--masks`` of the commands, and datasets.
+
+    Args:
+      path: the image (PNG, checked for truncation and damage first; other formats OpenCV
+        reads).
+      hw: (height, width) the mask must have (its camera's image size), or None.
+      label: starts every error and names where the mask was asked for (the rig file and
+        camera, the command-line option and camera, or the dataset row).
+
+    Raises FileNotFoundError for a missing file and ValueError for an unreadable one or one of
+    another size (expected and found sizes, W x H).
     """
     import cv2
 
     path = Path(path)
+    prefix = f"{label}: " if label else ""
     if not path.is_file():
-        raise FileNotFoundError(f"{label}: mask image {path} does not exist")
-    # UNCHANGED: a 16-bit mask read as 8-bit grey would turn values below 256 into 0.
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError(f"{label}: {path} is not a readable image (expected a PNG mask)")
+        raise FileNotFoundError(f"{prefix}missing file {path} (a mask image)")
+    if is_png(path):
+        img = read_png(path, label)
+    else:
+        # UNCHANGED: a 16-bit mask read as 8-bit grey would turn values below 256 into 0.
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"{prefix}{path} is not a readable image (expected a mask image, "
+                             f"e.g. a PNG)")
     if img.ndim == 3:
         colour = img[..., :3] if img.shape[2] >= 3 else img[..., :1]
         img = colour.max(axis=2)
-    found = (img.shape[1], img.shape[0])
-    if found != (cam.width, cam.height):
-        raise ValueError(f"{label}: mask {path} is {found[0]}x{found[1]} px but the camera's "
-                         f"image is {cam.width}x{cam.height} px (width x height); a mask must "
+    if hw is not None and tuple(img.shape) != tuple(hw):
+        raise ValueError(f"{prefix}mask {path} is {img.shape[1]}x{img.shape[0]} px but the "
+                         f"camera's image is {hw[1]}x{hw[0]} px (width x height); a mask must "
                          f"be the size of its camera's image")
     return (img > 0).astype(np.float32)
 
@@ -64,7 +77,7 @@ def attach_masks(rig: Rig, paths: Sequence, source: str, option: str = "--masks"
         raise ValueError(f"{option}: {len(paths)} mask file(s) given for the "
                          f"{rig.num_cameras} cameras of {source} "
                          f"({', '.join(rig.names)}); give one PNG per camera, in camera order")
-    masks = tuple(read_mask(p, cam, f"{option}: camera {name!r}")
+    masks = tuple(read_mask(p, (cam.height, cam.width), f"{option}: camera {name!r}")
                   for p, cam, name in zip(paths, rig.cameras, rig.names))
     return rig.replace(masks=masks)
 

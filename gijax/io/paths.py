@@ -1,5 +1,5 @@
 """Output paths: checks that make a wrong kind of path fail with one clear line up front, and
-the atomic write every output file goes through.
+the atomic write every output file goes through (bytes, text, JSON, NPY, PNG, figures).
 
 A file where a folder is wanted (or the reverse) otherwise surfaces as an OSError from deep
 inside a writer, after the work that produced the output, and sometimes after temporary files
@@ -23,6 +23,7 @@ lock only orders callers that take it), or parsing ``/proc/self/status``, which 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import secrets
 from pathlib import Path
@@ -44,6 +45,23 @@ def _create_temporary(path: Path, suffix: str) -> Path:
         try:
             os.close(os.open(tmp, _CREATE_FLAGS, 0o666))
             return tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path.parent}: could not find a free temporary name for {path.name}")
+
+
+def temporary_folder_beside(path: str | os.PathLike) -> Path:
+    """A new, empty folder ``.<name>.<random>`` beside ``path``, mode 0o777 less umask (unlike
+    ``tempfile.mkdtemp``'s private 0o700), for writers that assemble a whole folder and rename
+    it into place (bundles). The caller renames or removes it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    name = path.name[:_MAX_NAME_PART]
+    for _ in range(100):
+        folder = path.with_name(f".{name}.{secrets.token_hex(4)}")
+        try:
+            os.mkdir(folder, 0o777)
+            return folder
         except FileExistsError:
             continue
     raise FileExistsError(f"{path.parent}: could not find a free temporary name for {path.name}")
@@ -77,7 +95,7 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None,
     removed and ``path`` is left as it was.
 
     Args:
-      path: the destination; its folder must exist.
+      path: the destination; its folder is created when missing.
       suffix: end of the temporary's name; by default ``.tmp`` plus ``path``'s own extension,
         since some writers choose the format by it (``cv2.imwrite``) or append one when it is
         missing (``np.save``).
@@ -85,6 +103,7 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None,
         losing the last files of a power cut, e.g. datasets not written as durable).
     """
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = _create_temporary(path, ".tmp" + path.suffix if suffix is None else suffix)
     try:
         yield tmp
@@ -110,6 +129,52 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes, *, suffix: str = ".
 def write_text_atomic(path: str | os.PathLike, text: str, *, fsync: bool = True) -> Path:
     """Write ``text`` as UTF-8 to ``path`` atomically (see :func:`atomic_path`)."""
     return write_bytes_atomic(path, text.encode("utf-8"), fsync=fsync)
+
+
+def write_json_atomic(path: str | os.PathLike, obj, *, indent: int | None = 2,
+                      fsync: bool = True) -> Path:
+    """Write ``obj`` as JSON (``indent``, then a newline) to ``path`` atomically. Non-finite
+    floats are written as ``NaN`` / ``Infinity`` as Python's json does; callers that need strict
+    JSON convert them first."""
+    return write_text_atomic(path, json.dumps(obj, indent=indent) + "\n", fsync=fsync)
+
+
+def save_npy_atomic(path: str | os.PathLike, array) -> Path:
+    """Write ``array`` as an ``.npy`` file to ``path`` atomically (``np.save`` format)."""
+    import numpy as np
+
+    path = Path(path)
+    # The temporary's name ends in ".npy", so np.save appends no extension of its own.
+    with atomic_path(path, suffix=".tmp.npy") as tmp:
+        np.save(tmp, np.asarray(array))
+    return path
+
+
+def write_png_atomic(path: str | os.PathLike, image, *, fsync: bool = True) -> Path:
+    """Write ``image`` as a PNG file to ``path`` atomically: (H, W) grey or (H, W, 3) RGB, 8- or
+    16-bit. ValueError naming the file when OpenCV cannot encode it."""
+    import cv2
+    import numpy as np
+
+    path = Path(path)
+    image = np.asarray(image)
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = image[..., ::-1]  # OpenCV writes BGR
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image))
+    if not ok:
+        raise ValueError(f"{path}: OpenCV could not encode an image of shape {image.shape} and "
+                         f"dtype {image.dtype} as PNG")
+    return write_bytes_atomic(path, buf.tobytes(), fsync=fsync)
+
+
+def save_figure_atomic(fig, path: str | os.PathLike, **savefig_kwargs) -> Path:
+    """Save a matplotlib figure to ``path`` atomically; ``savefig_kwargs`` go to ``savefig``.
+    The format follows ``path``'s extension unless ``format`` says otherwise (the temporary
+    keeps the extension)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, **savefig_kwargs)
+    return path
 
 
 def _blocking_parent(path: Path) -> Path | None:
@@ -143,5 +208,6 @@ def check_output_file(path: str | os.PathLike, option: str = "--out") -> Path:
     return path
 
 
-__all__ = ["atomic_path", "check_output_dir", "check_output_file", "write_bytes_atomic",
+__all__ = ["atomic_path", "check_output_dir", "check_output_file", "save_figure_atomic",
+           "save_npy_atomic", "temporary_folder_beside", "write_bytes_atomic", "write_json_atomic", "write_png_atomic",
            "write_text_atomic"]

@@ -57,7 +57,7 @@ from gijax.io import basalt, kalibr
 from gijax.io.masks import read_mask
 from gijax.io.parsing import Where, check_rotation, checked_camera, floats, quat_matrix, \
     require, resolution
-from gijax.io.paths import atomic_path, write_text_atomic
+from gijax.io.paths import write_png_atomic, write_text_atomic
 
 FORMAT_VERSION = 1
 
@@ -122,8 +122,8 @@ def _gijax_camera(i: int, c: dict, where: Where, root: Path):
                    "[x, y, z] in metres")
     mask = None
     if c.get("mask") is not None:
-        mask = read_mask(root / str(c["mask"]), cam, f"{where.path}: camera {name!r}: field "
-                                                     f"'mask'")
+        mask = read_mask(root / str(c["mask"]), (cam.height, cam.width),
+                         f"{where.path}: camera {name!r}: field 'mask'")
     return name, cam, rot, trans, mask
 
 
@@ -265,21 +265,16 @@ def save_rig(rig: Rig, path) -> Path:
     with the same cameras, poses, reference, panorama frame, occluder, names and masks
     (float32-exact).
     """
-    import cv2
     import yaml
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     mask_files = []
     for name, mask in zip(rig.names, rig.masks):
         if mask is None:
             mask_files.append(None)
             continue
         fname = mask_file_name(path, name)
-        img = (np.asarray(mask) >= 0.5).astype(np.uint8) * 255
-        with atomic_path(path.parent / fname) as tmp:
-            if not cv2.imwrite(str(tmp), img):
-                raise ValueError(f"{path.parent / fname}: could not write the mask PNG")
+        write_png_atomic(path.parent / fname, (np.asarray(mask) >= 0.5).astype(np.uint8) * 255)
         mask_files.append(fname)
     text = yaml.safe_dump(rig_to_dict(rig, mask_files), sort_keys=False,
                           default_flow_style=None)

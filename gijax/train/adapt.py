@@ -299,7 +299,7 @@ def _plot_curve(path: Path, history: list, initial: np.ndarray, final: np.ndarra
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from gijax.io.paths import atomic_path
+    from gijax.io.paths import save_figure_atomic
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
     steps = [h["step"] for h in history]
@@ -314,7 +314,8 @@ def _plot_curve(path: Path, history: list, initial: np.ndarray, final: np.ndarra
     b.legend()
     b.set_title("candidate lists")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    try:
+        save_figure_atomic(fig, path, dpi=110, format="png")
+    finally:
+        plt.close(fig)
     return str(path)

@@ -10,11 +10,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from gijax.io.paths import temporary_folder_beside
 from gijax.store.bundles import PROVENANCE_FILE, WEIGHTS_FILE, flatten_variables
 from gijax.store.configs import CONFIG_FILE
 
@@ -96,8 +96,10 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     with FolderLock(out_dir, "bundle", out_dir.parent / f".{out_dir.name}.gijax.lock"):
         _recover(out_dir)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-        os.chmod(tmp, 0o755)  # mkdtemp makes it private; a bundle is meant to be shared
+        # The folder is the unit made atomic (renamed into place when complete), so the files
+        # inside it are written plainly; its leftovers hold only bundle file names, which
+        # _recover recognises.
+        tmp = temporary_folder_beside(out_dir)
         try:
             if candidates is None:
                 shutil.copyfile(config_file, tmp / CONFIG_FILE)

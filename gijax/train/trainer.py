@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import shutil
 import time
 from pathlib import Path
@@ -27,9 +26,9 @@ from gijax.candidates.parametrisation import logits_from_candidates
 from gijax.geometry.rig import Rig
 from gijax.io.lock import FolderLock
 from gijax.train import step as S
-from gijax.io.paths import write_text_atomic
+from gijax.io.paths import write_png_atomic, write_text_atomic
 from gijax.store.configs import CONFIG_FILE, model_config_to_dict
-from gijax.train.checkpoints import CheckpointStore
+from gijax.store.checkpoints import CheckpointStore
 from gijax.train.config import TrainConfig, load_run_config, save_run_config
 from gijax.train.metrics import batch_sums, summarize
 from gijax.train.sources import RIG_KEY
@@ -336,7 +335,7 @@ class Trainer:
         with open(self.run_dir / METRICS_FILE, "a") as f:
             f.write(json.dumps(record) + "\n")
         if self._tb is None:
-            from gijax.train.tbwriter import EventWriter
+            from gijax.io.events import EventWriter
 
             self._tb = EventWriter(self.run_dir / "tb")
         prefix = record.get("split", "train")
@@ -379,8 +378,6 @@ class Trainer:
         return metrics
 
     def _write_samples(self, step: int, samples) -> None:
-        import cv2
-
         from gijax.viz.colormap import colorize
 
         lo, hi = 1.0 / float(self.candidates[-1]), 1.0 / float(self.candidates[0])
@@ -390,11 +387,7 @@ class Trainer:
             gt = 1.0 / np.where(np.isfinite(dist) & (dist > 0), dist, np.inf)
             gap = np.full((4, inv.shape[1], 3), 255, np.uint8)
             rgb = np.concatenate([colorize(inv, lo, hi), gap, colorize(gt, lo, hi)], axis=0)
-            ok, png = cv2.imencode(".png", rgb[..., ::-1])
-            path = folder / f"step{step:07d}_sample{i}.png"
-            tmp = path.with_name("." + path.name + ".tmp")
-            tmp.write_bytes(png.tobytes())
-            os.replace(tmp, path)
+            write_png_atomic(folder / f"step{step:07d}_sample{i}.png", rgb)
             if self._tb is not None:
                 self._tb.image(step, f"val/prediction_above_label_below/{i}", rgb)
 
@@ -543,7 +536,7 @@ def drop_logs_after(run_dir, step: int) -> None:
     logs) again from the last checkpoint; dropping them first keeps one record per step, so
     readers need no de-duplication. A line or event cut short by the kill goes too.
     """
-    from gijax.train.tbwriter import drop_events_after
+    from gijax.io.events import drop_events_after
 
     run_dir = Path(run_dir)
     path = run_dir / METRICS_FILE

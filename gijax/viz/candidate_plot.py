@@ -13,7 +13,7 @@ import numpy as np
 
 from gijax.candidates import (MEASURE_UNITS, TRAIN_BASELINE, closed_form_steps, ev_candidates,
                               gi_candidates, rig_gi_candidates, step_uniformity)
-from gijax.io.paths import atomic_path
+from gijax.io.paths import save_figure_atomic
 
 
 def _closed_panel(ax, n, d_min, d_max, baseline, title):
@@ -73,11 +73,8 @@ def plot_candidates(path, n: int = 16, d_min: float = 0.5, d_max: float = 100.0,
     if rig is not None:
         _rig_panel(axes[2], rig, rig_name, n, d_min, d_max, measure)
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
     try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110)
+        save_figure_atomic(fig, path, dpi=110)
     finally:
         plt.close(fig)
     return path

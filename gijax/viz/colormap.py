@@ -6,7 +6,6 @@ Files are written to a temporary name and renamed, so a partial PNG never looks 
 
 from __future__ import annotations
 
-import os
 import textwrap
 
 import matplotlib
@@ -15,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
 
-from gijax.io.paths import atomic_path  # noqa: E402
+from gijax.io.paths import save_figure_atomic  # noqa: E402
 
 
 def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "turbo",
@@ -38,13 +37,6 @@ def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "turbo",
         rgb = np.where(np.asarray(valid, bool)[..., None], rgb, rgb * invalid_dim)
     rgb = np.where(finite[..., None], rgb, 0.0)
     return (rgb * 255.0 + 0.5).astype(np.uint8)
-
-
-def _atomic_savefig(fig, path: str, dpi: int) -> None:
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
 
 
 def save_panorama_png(path: str, values: np.ndarray, label: str, vmin: float, vmax: float,
@@ -84,7 +76,7 @@ def save_panorama_png(path: str, values: np.ndarray, label: str, vmin: float, vm
             order = sorted(kept)
             bar.set_ticks(order)
             bar.set_ticklabels([kept[k] for k in order])
-        _atomic_savefig(fig, path, dpi)
+        save_figure_atomic(fig, path, dpi=dpi, format="png")
     finally:
         plt.close(fig)
     return path

@@ -23,6 +23,7 @@ import numpy as np
 from gijax.geometry.field_of_view import field_of_view, mask_field_of_view
 from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, pairwise_baselines
+from gijax.io.paths import save_figure_atomic
 
 # A camera axis whose in-plane part is shorter than this points (nearly) out of the view.
 _OUT_OF_VIEW = 0.2
@@ -213,10 +214,7 @@ def plot_rig(rig: Rig, path, title: str | None = None) -> Path:
     import matplotlib.pyplot as plt
 
     fig = rig_figure(rig, title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight", pad_inches=0.15)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    try:
+        return save_figure_atomic(fig, path, dpi=110, bbox_inches="tight", pad_inches=0.15)
+    finally:
+        plt.close(fig)
