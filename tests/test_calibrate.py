@@ -231,3 +231,63 @@ def test_frame_without_overlap_is_refused_with_one_line():
         ref.refine_rig(rig, images, masks, ref.RefineConfig(steps=3, pano_hw=PANO_HW),
                        initial_inv=np.stack([np.full((2 * PANO_HW[0], PANO_HW[1]), 0.5)] * 2),
                        progress=False)
+
+
+def _write_frames(tmp_path, rig, images):
+    import cv2
+
+    folders = []
+    for f, frame in enumerate(images):
+        folder = tmp_path / f"frame{f}"
+        folder.mkdir()
+        for name, img in zip(rig.names, frame):
+            u8 = np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)
+            cv2.imwrite(str(folder / f"{name}.png"), u8[..., ::-1])
+        folders.append(str(folder))
+    return folders
+
+
+def test_command_writes_the_refined_rig_and_its_report(tmp_path, capsys, quick_compiles_here):
+    import json
+
+    from gijax.cli import main
+    from gijax.io.rigfile import load_rig, save_rig
+
+    truth = triangle_rig()
+    images, _ = frames(truth)
+    start = turn(truth, 2, (1.0, 0.0, 0.0), 1.0)
+    save_rig(start, tmp_path / "start.yaml")
+    folders = _write_frames(tmp_path, truth, images)
+    out, report, png = tmp_path / "refined.yaml", tmp_path / "report.json", tmp_path / "loss.png"
+    rc = main(["rig", "refine", str(tmp_path / "start.yaml"), "--frames", *folders, "--out",
+               str(out), "--steps", "6", "--scale", "1", "--start-distance", "2",
+               "--plot", str(png), "--json", str(report), "--no-progress"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    refined = load_rig(out)
+    np.testing.assert_allclose(np.asarray(refined.rotations[0]), np.asarray(start.rotations[0]),
+                               atol=1e-7)
+    doc = json.loads(report.read_text())
+    assert [c["name"] for c in doc["cameras"]] == ["cam0", "cam1", "cam2"]
+    assert doc["cameras"][0]["rotation_deg"] == 0.0
+    assert doc["cameras"][2]["rotation_deg"] > 0.0
+    assert len(doc["history"]) == 6
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "cam2:" in text and "photometric loss:" in text and "gauge: camera 0" in text
+
+
+def test_command_names_a_missing_camera_image(tmp_path, capsys):
+    from gijax.cli import main
+    from gijax.io.rigfile import save_rig
+
+    truth = triangle_rig()
+    images, _ = frames(truth)
+    save_rig(truth, tmp_path / "rig.yaml")
+    folders = _write_frames(tmp_path, truth, images[:1])
+    (tmp_path / "frame0" / "cam1.png").unlink()
+    rc = main(["rig", "refine", str(tmp_path / "rig.yaml"), "--frames", *folders, "--out",
+               str(tmp_path / "out.yaml"), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1
+    assert len(err) == 1 and "no image for camera 'cam1'" in err[0] and "frame0" in err[0], err
+    assert not (tmp_path / "out.yaml").exists()

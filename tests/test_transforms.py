@@ -151,6 +151,7 @@ NOT_TRACED = {
     "gijax.calibrate.refine.pose_change": "NumPy report of concrete poses",
     "gijax.calibrate.refine.gauge_aligned_errors": "NumPy report of concrete poses",
     "gijax.calibrate.refine.blur_radius": "Python int of a static sigma",
+    "gijax.calibrate.refine.refine_panorama": "a static panorama from concrete poses",
     "gijax.calibrate.frames.read_frame_folder": "reads files",
     "gijax.calibrate.frames.read_frames": "reads files",
     "gijax.calibrate.plots.plot_loss_curve": "writes a PNG",

@@ -428,7 +428,7 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
     texture = [frame_texture(im, m) for im, m in zip(images, masks)]
     check_texture(texture, rig.names, labels, config)
     choice = choose_panorama(rig)
-    pano = panorama_of(choice.coverage, config.pano_hw)
+    pano = refine_panorama(rig, config)
     work = with_panorama_rotation(rig, choice.rotation)
     work = work.replace(rotations=jnp.asarray(work.rotations, jnp.float32),
                         translations=jnp.asarray(work.translations, jnp.float32))
@@ -482,6 +482,13 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
     say(f"photometric loss {loss_before:.5f} -> {loss_after:.5f}")
     return RefineResult(out_rig, rig, history, loss_before, loss_after, pose_change(rig, out_rig),
                         measures, np.exp(np.asarray(params["log_inv"], np.float64)))
+
+
+def refine_panorama(rig: Rig, config: RefineConfig = RefineConfig()) -> Panorama:
+    """The panorama the distance maps of :func:`refine_rig` live on: the coverage
+    :func:`gijax.geometry.panorama_frame.choose_panorama` picks for ``rig`` at
+    ``config.pano_hw`` (a static panorama from concrete poses)."""
+    return panorama_of(choose_panorama(rig).coverage, config.pano_hw)
 
 
 def _prepared(images: np.ndarray, masks: np.ndarray, sigma: float) -> Array:

@@ -87,7 +87,8 @@ def _refine(args) -> int:
     import numpy as np
 
     from gijax.calibrate.frames import read_frames
-    from gijax.calibrate.refine import GAUGE, RefineConfig, refine_rig, transfer_refinement
+    from gijax.calibrate.refine import (GAUGE, RefineConfig, refine_panorama, refine_rig,
+                                        transfer_refinement)
     from gijax.data.images import fit_images
     from gijax.io.masks import import_rig
     from gijax.io.paths import check_output_file, write_text_atomic
@@ -111,7 +112,13 @@ def _refine(args) -> int:
           f"{size[0]}x{size[1]} px ({args.steps} steps{', intrinsics too' if args.intrinsics else ''})")
     print(f"gauge: {GAUGE}")
     config = RefineConfig(steps=args.steps, intrinsics=args.intrinsics)
-    result = refine_rig(work, work_images, work_masks, config, labels=labels,
+    start = None
+    if args.start_distance is not None:
+        if not args.start_distance > 0:
+            raise ValueError(f"--start-distance must be > 0 metres; found {args.start_distance}")
+        start = np.full((len(labels), *refine_panorama(work, config).shape),
+                        1.0 / args.start_distance)
+    result = refine_rig(work, work_images, work_masks, config, labels=labels, initial_inv=start,
                         progress=not args.no_progress)
     refined = transfer_refinement(rig, work, result.rig)
     out = save_rig(refined, args.out)
@@ -220,6 +227,9 @@ def register(subparsers) -> None:
     ref.add_argument("--scale", type=float, default=0.25,
                      help="working image scale: images and lenses are resized by this factor "
                           "before refining (the refined poses hold at any size)")
+    ref.add_argument("--start-distance", type=float, metavar="METRES",
+                     help="start every panorama ray at this distance instead of at the classical "
+                          "baseline's estimate (faster; for scenes the baseline handles badly)")
     ref.add_argument("--max-frames", type=int, default=8,
                      help="use at most this many frames (the first ones)")
     ref.add_argument("--plot", metavar="LOSS.png", help="write the loss curve as a PNG")
