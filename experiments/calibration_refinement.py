@@ -34,13 +34,13 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from experiments.arguments import resolve_paths  # noqa: E402
 from experiments.provenance import command_line, revision  # noqa: E402
 from experiments.reporting import (fmt, save_png, update_results_section, write_json,  # noqa: E402
                                    write_text)
 from gijax.bench.machine import machine_info  # noqa: E402
 from gijax.bench.report import markdown_grid  # noqa: E402
 
-EXPERIMENTS = Path(__file__).resolve().parent
 RIGS = ("paper-train", "paper-test3")
 SCALES = {
     # image scale of the 1024 px rigs, rendered frames per rig, Adam steps, seeds, label and
@@ -187,13 +187,9 @@ def main(argv=None) -> int:
                         help="Markdown file whose section to update (default "
                              "experiments/RESULTS.md for --scale cpu); 'none' disables")
     args = parser.parse_args(argv)
+    args.work = None        # nothing is shared between runs: every frame is rendered here
     cfg = SCALES[args.scale]
-    out = Path(args.out) if args.out else (
-        EXPERIMENTS / "results" / "calibration_refinement_cpu" if args.scale == "cpu"
-        else EXPERIMENTS / "out" / f"calibration_refinement_{args.scale}")
-    results = None if args.results == "none" else (
-        Path(args.results) if args.results else
-        (EXPERIMENTS / "RESULTS.md" if args.scale == "cpu" else None))
+    _, out, results = resolve_paths(args, "calibration_refinement")
     started = time.perf_counter()
     rows = [run_case(name, seed, cfg) for name in RIGS for seed in cfg["seeds"]]
     plot(rows, out.with_suffix(".png"))

@@ -291,3 +291,16 @@ def test_command_names_a_missing_camera_image(tmp_path, capsys):
     assert rc == 1
     assert len(err) == 1 and "no image for camera 'cam1'" in err[0] and "frame0" in err[0], err
     assert not (tmp_path / "out.yaml").exists()
+
+
+def test_experiment_perturbation_is_within_its_stated_bounds():
+    from experiments.calibration_refinement import perturb
+    from gijax.geometry.layouts import layout_rig
+
+    square = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]])
+    truth = layout_rig(square, np.zeros(3), masks=False)
+    for seed in (0, 1):
+        moved = ref.pose_change(truth, perturb(truth, seed))
+        assert moved["rotation_deg"][0] == 0.0 and moved["translation_mm"][0] == 0.0
+        assert all(0.5 - 1e-3 <= a <= 2.0 + 1e-3 for a in moved["rotation_deg"][1:]), moved
+        assert all(10.0 - 1e-3 <= t <= 30.0 + 1e-3 for t in moved["translation_mm"][1:]), moved
