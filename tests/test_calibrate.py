@@ -304,3 +304,26 @@ def test_experiment_perturbation_is_within_its_stated_bounds():
         assert moved["rotation_deg"][0] == 0.0 and moved["translation_mm"][0] == 0.0
         assert all(0.5 - 1e-3 <= a <= 2.0 + 1e-3 for a in moved["rotation_deg"][1:]), moved
         assert all(10.0 - 1e-3 <= t <= 30.0 + 1e-3 for t in moved["translation_mm"][1:]), moved
+
+
+def test_a_dataset_folder_reads_as_one_frame_per_sample(tmp_path):
+    from gijax.calibrate.frames import read_frames
+    from gijax.data.writer import write_dataset
+
+    rig = triangle_rig()
+    images, masks = frames(rig)
+    pano = Panorama.hemisphere(4, 16)
+
+    def sample(i):
+        return {"images": np.round(images[i] * 255).astype(np.uint8),
+                "distances": np.full(images.shape[1:4], RADII[i], np.float32),
+                "masks": masks[i].astype(np.uint8),
+                "pano_distance": np.full(pano.shape, RADII[i], np.float32)}
+
+    write_dataset(tmp_path / "d", sample, rig, pano, num_samples=2)
+    got, got_masks, labels = read_frames([tmp_path / "d"], rig)
+    assert labels == [f"{tmp_path / 'd'}#0", f"{tmp_path / 'd'}#1"]
+    np.testing.assert_array_equal(got, np.round(images * 255).astype(np.uint8))
+    np.testing.assert_array_equal(got_masks, masks)
+    one, _, _ = read_frames([tmp_path / "d"], rig, max_frames=1)
+    assert one.shape[0] == 1
