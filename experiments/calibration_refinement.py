@@ -47,7 +47,7 @@ SCALES = {
     # RTSS panorama (H, W), refinement panorama (H, W)
     "smoke": dict(image_scale=0.125, frames=2, steps=30, seeds=(0,), pano_hw=(16, 64),
                   refine_hw=(16, 64)),
-    "cpu": dict(image_scale=0.25, frames=4, steps=600, seeds=(0, 1), pano_hw=(40, 160),
+    "cpu": dict(image_scale=0.25, frames=3, steps=400, seeds=(0,), pano_hw=(40, 160),
                 refine_hw=(48, 192)),
 }
 TARGET_DEG, TARGET_MM, TARGET_MAE = 0.1, 3.0, 0.05

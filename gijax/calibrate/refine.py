@@ -205,7 +205,8 @@ def blur_radius(sigma: float) -> int:
 
 
 def frame_terms(rig: Rig, images: Array, masks: Array, log_inv: Array,
-                pano: Panorama, edge_scale: float = 0.05) -> dict:
+                pano: Panorama, edge_scale: float = 0.05,
+                guide: Optional[Array] = None) -> dict:
     """One frame's photometric terms at the calibration of ``rig``.
 
     Args:
@@ -213,10 +214,15 @@ def frame_terms(rig: Rig, images: Array, masks: Array, log_inv: Array,
       images: (N, h, w, 3) prepared images (:func:`prepare_images`); ``masks`` (N, h, w).
       log_inv: (H, W) log inverse distance (1/m) on ``pano`` (the rig's panorama frame).
       pano: the panorama (static); ``edge_scale``: see :class:`RefineConfig`.
+      guide: (H, W, 3) the panorama colour the smoothness's edges are found in, or None for
+        this call's own (``colour``). :func:`refine_rig` passes the colour of the calibration
+        at the start of each blur level: with the edges inside the gradient, the smoothness
+        would pull the poses towards sharper (misaligned) edges.
 
     Returns a dict of scalars ``data`` (mean dispersion over compared points), ``smooth``
     (edge-aware total variation of ``log_inv``), ``overlap`` (fraction of panorama points
-    compared), and the (H, W) maps ``dispersion`` and ``weight`` (total camera weight).
+    compared), and the maps ``dispersion`` and ``weight`` (total camera weight) (H, W) and
+    ``colour`` (H, W, 3, the cameras' weighted mean).
     """
     dtype = images.dtype
     rays = panorama_rays(rig, pano, dtype)                                   # (H, W, 3)
@@ -237,36 +243,43 @@ def frame_terms(rig: Rig, images: Array, masks: Array, log_inv: Array,
     seen = (total >= SEEN_WEIGHT).astype(dtype)
     count = jnp.maximum(jnp.sum(seen), 1.0)
     data = jnp.sum(dispersion * seen) / count
-    # Edge-aware smoothness: neighbours whose mean colour differs are allowed to differ. The
-    # weights stay inside the gradient, so the objective is one differentiable function.
+    # Edge-aware smoothness: neighbours whose colour differs are allowed to differ.
     colour = jnp.sum(cols * wts[..., None], 0) / jnp.maximum(total, 1e-6)[..., None]
+    edges_in = colour if guide is None else guide.astype(dtype)
     smooth = 0.0
     for axis, wrap in ((0, False), (1, True)):
         if wrap:
             d_inv = jnp.roll(log_inv, -1, axis) - log_inv
-            d_col = jnp.roll(colour, -1, axis) - colour
+            d_col = jnp.roll(edges_in, -1, axis) - edges_in
             both = seen * jnp.roll(seen, -1, axis)
         else:
             d_inv = jnp.diff(log_inv, axis=axis)
-            d_col = jnp.diff(colour, axis=axis)
+            d_col = jnp.diff(edges_in, axis=axis)
             both = seen[1:] * seen[:-1]
         edge = jnp.exp(-jnp.sqrt(jnp.sum(d_col * d_col, -1) + 1e-12) / edge_scale)
         tv = jnp.sqrt(d_inv * d_inv + 1e-6)
         smooth = smooth + jnp.sum(tv * edge * both) / count
     return dict(data=data, smooth=smooth, overlap=jnp.mean(seen), dispersion=dispersion,
-                weight=total)
+                weight=total, colour=colour)
 
 
 def refinement_loss(params: dict, rig: Rig, images: Array, masks: Array, pano: Panorama,
-                    smoothness: float = 0.02, edge_scale: float = 0.05) -> tuple[Array, dict]:
+                    smoothness: float = 0.02, edge_scale: float = 0.05,
+                    guides: Optional[Array] = None) -> tuple[Array, dict]:
     """The objective over frames: mean data term + ``smoothness`` x mean smoothness.
 
     ``params`` as :func:`initial_parameters` (``log_inv`` (F, H, W)); ``images`` (F, N, h, w, 3)
-    prepared, ``masks`` (F, N, h, w). Returns ``(loss, {'data', 'smooth'})``.
+    prepared, ``masks`` (F, N, h, w); ``guides`` (F, H, W, 3) or None (see
+    :func:`frame_terms`). Returns ``(loss, {'data', 'smooth'})``.
     """
     refined = apply_calibration(rig, params)
-    terms = jax.vmap(lambda im, m, li: frame_terms(refined, im, m, li, pano, edge_scale))(
-        images, masks, params["log_inv"])
+    if guides is None:
+        terms = jax.vmap(lambda im, m, li: frame_terms(refined, im, m, li, pano, edge_scale))(
+            images, masks, params["log_inv"])
+    else:
+        terms = jax.vmap(lambda im, m, li, g: frame_terms(refined, im, m, li, pano, edge_scale,
+                                                          g))(
+            images, masks, params["log_inv"], guides)
     data = jnp.mean(terms["data"])
     smooth = jnp.mean(terms["smooth"])
     return data + smoothness * smooth, {"data": data, "smooth": smooth}
@@ -369,10 +382,10 @@ def _step_fn(pano: Panorama, config: RefineConfig):
                  "log_inv": config.lr_depth}
 
         @jax.jit
-        def step(params, opt_state, scale, rig, images, masks):
+        def step(params, opt_state, scale, rig, images, masks, guides):
             def loss_fn(p):
                 return refinement_loss(p, rig, images, masks, pano, config.smoothness,
-                                       config.edge_scale)
+                                       config.edge_scale, guides)
 
             (loss, aux), grad = jax.value_and_grad(loss_fn, has_aux=True)(params)
             updates, opt_state = tx.update(grad, opt_state, params)
@@ -464,11 +477,12 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
               disable=not progress) as bar:
         for level, (sigma, count) in enumerate(zip(config.blur, per_level)):
             level_images = fine_images if sigma == finest else _prepared(images, masks, sigma)
+            guides = _guides(work, params, level_images, jmasks, pano)
             for _ in range(count):
                 frac = done / max(config.steps - 1, 1)
                 scale = config.lr_floor + (1 - config.lr_floor) * 0.5 * (1 + math.cos(math.pi * frac))
                 params, opt, loss, data = step(params, opt, jnp.float32(scale), work,
-                                               level_images, jmasks)
+                                               level_images, jmasks, guides)
                 loss, data = float(loss), float(data)
                 if not math.isfinite(loss):
                     raise FloatingPointError(f"refinement loss is {loss} at step {done}")
@@ -500,6 +514,13 @@ def _prepared(images: np.ndarray, masks: np.ndarray, sigma: float) -> Array:
 @functools.lru_cache(maxsize=None)
 def _prepare_jit(radius: int):
     return jax.jit(lambda im, m, s: prepare_images(im, m, s, radius))
+
+
+def _guides(rig: Rig, params: dict, images: Array, masks: Array, pano: Panorama) -> Array:
+    """Every frame's panorama colour at the current calibration (the smoothness's edges)."""
+    refined = apply_calibration(rig, params)
+    return jnp.stack([_frame_terms_jit(refined, images[f], masks[f], params["log_inv"][f],
+                                       pano)["colour"] for f in range(images.shape[0])])
 
 
 def _data_term(rig: Rig, params: dict, images: Array, masks: Array, pano: Panorama) -> float:
