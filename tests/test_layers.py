@@ -21,12 +21,14 @@ layers, never a unit of its own layer or a higher one:
 10  store, data, baseline, design, viz         trained models on disk, datasets (rendered
                                                with ``render``), the classical baseline,
                                                layout design, figures
-11  train, export, predict                     training (writes run folders, reads them
+11  calibrate                                  calibration refinement from unlabeled
+                                               images (uses ``baseline`` to start)
+12  train, export, predict                     training (writes run folders, reads them
                                                back through ``store``), ONNX / TensorRT,
                                                inference files
-12  demo, bench                                the demo, the benchmark suite
-13  cli                                        the ``gijax`` command
-14  __main__                                   ``python -m gijax``
+13  demo, bench                                the demo, the benchmark suite
+14  cli                                        the ``gijax`` command
+15  __main__                                   ``python -m gijax``
 ==  =========================================  ==============================================
 
 A new top-level module fails here until it is given a layer. Inside ``gijax/cli`` a
@@ -55,6 +57,7 @@ LAYERS = (
     ("model",),
     ("render",),
     ("store", "data", "baseline", "design", "viz"),
+    ("calibrate",),
     ("train", "export", "predict"),
     ("demo", "bench"),
     ("cli",),

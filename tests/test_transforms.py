@@ -44,7 +44,8 @@ from gijax.geometry import cameras, field_of_view, occluder, panorama, rig as ri
 from gijax.geometry import panorama_frame
 from gijax.geometry.panorama import Panorama
 from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
-from gijax.sweep import grid, sample, surrogate
+from gijax.sweep import consistency, grid, sample, surrogate
+from gijax.calibrate import refine as calib_refine
 from gijax.nn import cost_volume, layers, refine, regressor, spherical, upsample
 from gijax.train import losses, metrics
 
@@ -54,7 +55,7 @@ objective = importlib.import_module("gijax.design.objective")
 pytestmark = pytest.mark.usefixtures("quick_compiles")
 
 COVERED_PACKAGES = ("gijax.geometry", "gijax.candidates", "gijax.sweep", "gijax.baseline",
-                    "gijax.design", "gijax.nn")
+                    "gijax.design", "gijax.nn", "gijax.calibrate")
 COVERED_MODULES = ("gijax.train.losses", "gijax.train.metrics", "gijax.sampling",
                    "gijax.numerics")
 SEEDS = (0, 1)
@@ -140,6 +141,20 @@ NOT_TRACED = {
     "gijax.candidates.spec.resolve_candidates": "command-line spec (names, files) to NumPy",
     "gijax.baseline.rtss.rtss_predict_sample": "NumPy outputs for one loaded sample",
     "gijax.train.metrics.summarize": "Python numbers from accumulated values",
+    "gijax.calibrate.refine.check_texture": "argument check of concrete measures",
+    "gijax.calibrate.refine.check_overlap": "argument check of concrete measures",
+    "gijax.calibrate.refine.frame_texture": "NumPy report of a concrete frame",
+    "gijax.calibrate.refine.frame_overlap": "Python float of a concrete frame",
+    "gijax.calibrate.refine.initial_inverse_distance": "NumPy start from the baseline (an edge)",
+    "gijax.calibrate.refine.refine_rig": "optimisation loop (progress bar, Python results)",
+    "gijax.calibrate.refine.transfer_refinement": "a concrete rig from refined values",
+    "gijax.calibrate.refine.pose_change": "NumPy report of concrete poses",
+    "gijax.calibrate.refine.gauge_aligned_errors": "NumPy report of concrete poses",
+    "gijax.calibrate.refine.blur_radius": "Python int of a static sigma",
+    "gijax.calibrate.refine.refine_panorama": "a static panorama from concrete poses",
+    "gijax.calibrate.frames.read_frame_folder": "reads files",
+    "gijax.calibrate.frames.read_frames": "reads files",
+    "gijax.calibrate.plots.plot_loss_curve": "writes a PNG",
     "gijax.train.metrics.evaluate_batch": "Python numbers",
     # constants of static arguments (nothing to trace)
     "gijax.geometry.cameras.pixel_grid": "constant of static image sizes",
@@ -857,6 +872,62 @@ def _as_float_image(seed):
       diff=(0, 1))
 def _surrogate_images(seed):
     return small_rig(seed), jnp.stack([image(seed), image(seed + 1)])
+
+
+@case(consistency.view_dispersion, diff=(0, 1),
+      degenerate=[("no camera sees", lambda: (jnp.ones((2, 3, 3), F64), jnp.zeros((2, 3), F64)),
+                   False)])
+def _view_dispersion(seed):
+    w = jnp.asarray(np.random.default_rng(seed).uniform(0.2, 1.0, (3, 4)), F64)
+    return jnp.stack([image(seed, 4, 1)[:, 0], image(seed + 1, 4, 1)[:, 0],
+                      image(seed + 2, 4, 1)[:, 0]]), w
+
+
+# ------------------------------------------------------------------------------ calibrate
+
+CALIB_PANO = Panorama.hemisphere(2, 4)
+
+
+def _calib_params(seed, intrinsics=True):
+    rng = np.random.default_rng(40 + seed)
+    p = calib_refine.initial_parameters(small_rig(seed), np.full((1, 2, 4), -0.5), intrinsics)
+    return {k: jnp.asarray(np.asarray(v) + 0.01 * rng.normal(size=v.shape), F64)
+            for k, v in p.items()}
+
+
+def _calib_frame(seed):
+    ims = jnp.stack([image(seed), image(seed + 1)])
+    return ims, jnp.ones(ims.shape[:3], F64)
+
+
+@case(calib_refine.initial_parameters, call=lambda r, li: calib_refine.initial_parameters(
+    r, li, True), diff=(1,))
+def _calib_initial(seed):
+    return small_rig(seed), jnp.full((1, 2, 4), -0.5 + 0.1 * seed, F64)
+
+
+@case(calib_refine.apply_calibration, diff=(0, 1))
+def _calib_apply(seed):
+    return small_rig(seed), _calib_params(seed)
+
+
+@case(calib_refine.prepare_images, call=lambda im, m: calib_refine.prepare_images(im, m, 0.8, 2),
+      diff=(0,))
+def _calib_prepare(seed):
+    return _calib_frame(seed)
+
+
+@case(calib_refine.frame_terms, call=lambda r, im, m, li: calib_refine.frame_terms(
+    r, im, m, li, CALIB_PANO), diff=(0, 1, 3))
+def _calib_frame_terms(seed):
+    return (small_rig(seed), *_calib_frame(seed), _calib_params(seed)["log_inv"][0])
+
+
+@case(calib_refine.refinement_loss, call=lambda p, r, im, m: calib_refine.refinement_loss(
+    p, r, im, m, CALIB_PANO), diff=(0,))
+def _calib_loss(seed):
+    ims, ms = _calib_frame(seed)
+    return _calib_params(seed), small_rig(seed), ims[None], ms[None]
 
 
 # ------------------------------------------------------------------------------ baseline

@@ -1,5 +1,5 @@
-"""``gijax rig``: show a rig (built-in or file), import a calibration with its masks, and list
-the built-in layouts."""
+"""``gijax rig``: show a rig (built-in or file), import a calibration with its masks, list the
+built-in layouts, and refine a calibration from unlabeled images."""
 
 from __future__ import annotations
 
@@ -81,6 +81,69 @@ def _list(args) -> int:
     return 0
 
 
+def _refine(args) -> int:
+    import json
+
+    import numpy as np
+
+    from gijax.calibrate.frames import read_frames
+    from gijax.calibrate.refine import (GAUGE, RefineConfig, refine_panorama, refine_rig,
+                                        transfer_refinement)
+    from gijax.data.images import fit_images
+    from gijax.io.masks import import_rig
+    from gijax.io.paths import check_output_file, write_text_atomic
+    from gijax.io.rigfile import save_rig
+
+    check_output_file(args.out)
+    for option in ("plot", "json"):
+        if getattr(args, option):
+            check_output_file(getattr(args, option), f"--{option}")
+    if not 0 < args.scale <= 1:
+        raise ValueError(f"--scale must be in (0, 1]; found {args.scale}")
+    rig = import_rig(args.rig)
+    images, masks, labels = read_frames(args.frames, rig, args.max_frames)
+    cam = rig.cameras[0]
+    size = (max(8, round(cam.height * args.scale)), max(8, round(cam.width * args.scale)))
+    fitted = [fit_images(rig, im, m, size) for im, m in zip(images, masks)]
+    work = fitted[0][0]
+    work_images = np.stack([f[1] for f in fitted])
+    work_masks = np.stack([f[2] for f in fitted])
+    print(f"refining {rig.num_cameras} cameras from {len(labels)} frame(s) at "
+          f"{size[0]}x{size[1]} px ({args.steps} steps{', intrinsics too' if args.intrinsics else ''})")
+    print(f"gauge: {GAUGE}")
+    config = RefineConfig(steps=args.steps, intrinsics=args.intrinsics)
+    start = None
+    if args.start_distance is not None:
+        if not args.start_distance > 0:
+            raise ValueError(f"--start-distance must be > 0 metres; found {args.start_distance}")
+        start = np.full((len(labels), *refine_panorama(work, config).shape),
+                        1.0 / args.start_distance)
+    result = refine_rig(work, work_images, work_masks, config, labels=labels, initial_inv=start,
+                        progress=not args.no_progress)
+    refined = transfer_refinement(rig, work, result.rig)
+    out = save_rig(refined, args.out)
+    moved = result.moved
+    print("camera moves (refined vs given):")
+    for i, name in enumerate(rig.names):
+        print(f"  {name}: {moved['rotation_deg'][i]:.4f} deg, {moved['translation_mm'][i]:.2f} mm")
+    print(f"photometric loss: {result.loss_before:.5f} before, {result.loss_after:.5f} after")
+    print(f"wrote {out}")
+    if args.plot:
+        from gijax.calibrate.plots import plot_loss_curve
+
+        print(f"wrote {plot_loss_curve(result.history, args.plot, f'refining {args.rig}')}")
+    if args.json:
+        doc = {"rig": str(args.rig), "out": str(out), "frames": labels, "steps": args.steps,
+               "scale": args.scale, "intrinsics": bool(args.intrinsics), "gauge": GAUGE,
+               "loss_before": result.loss_before, "loss_after": result.loss_after,
+               "cameras": [{"name": n, "rotation_deg": moved["rotation_deg"][i],
+                            "translation_mm": moved["translation_mm"][i]}
+                           for i, n in enumerate(rig.names)],
+               "history": result.history}
+        print(f"wrote {write_text_atomic(args.json, json.dumps(doc, indent=2))}")
+    return 0
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "rig", help="show a camera rig, import a calibration with masks, or list the built-in "
@@ -135,3 +198,42 @@ def register(subparsers) -> None:
     lst.add_argument("-v", "--verbose", action="store_true",
                      help="build each rig and show its camera count and largest baseline")
     lst.set_defaults(func=_list)
+    ref = sub.add_parser(
+        "refine", help="refine a rig's camera poses (and intrinsics) from unlabeled images",
+        description="Refine the camera-to-rig poses of a rig (and, with --intrinsics, the "
+                    "focal lengths and principal points) by making the cameras agree "
+                    "photometrically on a few unlabeled frames: per frame a panorama distance "
+                    "map around the reference point, started from the classical baseline, is "
+                    "optimised jointly with the poses. Camera 0's pose and the distance "
+                    "between cameras 0 and 1 are held (images cannot tell where the rig is or "
+                    "how large it is). A frame is a folder of one image per camera named "
+                    "after the rig's cameras (cam0.png, cam1.png, ...; an optional "
+                    "<name>_mask.png beside each), or a gijax dataset folder (one frame per "
+                    "sample). Prints how far each camera moved and the photometric loss "
+                    "before and after.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ref.add_argument("rig", metavar="RIG",
+                     help="the rig to refine: a built-in name, gijax rig file or calibration")
+    ref.add_argument("--frames", nargs="+", required=True, metavar="DIR",
+                     help="frame folders (one image per camera, named after the rig's "
+                          "cameras) or gijax dataset folders")
+    ref.add_argument("--out", required=True, metavar="RIG2.yaml",
+                     help="refined rig file to write (masks beside it)")
+    ref.add_argument("--intrinsics", action="store_true",
+                     help="also refine every camera's focal length (fx and fy by one factor) "
+                          "and principal point")
+    ref.add_argument("--steps", type=int, default=300,
+                     help="Adam steps, split over three blur levels (coarse to fine)")
+    ref.add_argument("--scale", type=float, default=0.25,
+                     help="working image scale: images and lenses are resized by this factor "
+                          "before refining (the refined poses hold at any size)")
+    ref.add_argument("--start-distance", type=float, metavar="METRES",
+                     help="start every panorama ray at this distance instead of at the classical "
+                          "baseline's estimate (faster; for scenes the baseline handles badly)")
+    ref.add_argument("--max-frames", type=int, default=8,
+                     help="use at most this many frames (the first ones)")
+    ref.add_argument("--plot", metavar="LOSS.png", help="write the loss curve as a PNG")
+    ref.add_argument("--json", metavar="REPORT.json",
+                     help="write the report (per camera moves, losses, loss history) as JSON")
+    ref.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ref.set_defaults(func=_refine)

@@ -38,15 +38,13 @@ from gijax.geometry.panorama import Panorama, direction_to_pixel
 from gijax.geometry.panorama_frame import panorama_rays
 from gijax.geometry.rig import Rig
 from gijax.model import OmniStereoNet, model_panorama
-from gijax.numerics import safe_sqrt
 from gijax.sampling import bilinear_sample
+from gijax.sweep.consistency import view_dispersion
 from gijax.train.losses import smooth_l1_loss
 
 Array = jax.Array
 
 LOSSES = ("supervised", "photometric")
-# Charbonnier epsilon of the photometric difference (colours in [0, 1]).
-_PHOTO_EPS = 1e-3
 
 
 def photometric_loss(surrogates: Array, masks: Array, rig: Rig, inv_distance: Array,
@@ -62,8 +60,9 @@ def photometric_loss(surrogates: Array, masks: Array, rig: Rig, inv_distance: Ar
 
     Each pixel's point ``reference + ray / inv_distance`` is sampled (bilinearly) in every
     camera whose hemisphere holds it, weighted by the sampled mask; the loss is the weighted
-    mean Charbonnier distance of those colours to their weighted mean, averaged over pixels
-    seen by at least two cameras' worth of weight (0 when there is none).
+    mean Charbonnier distance of those colours to their weighted mean
+    (:func:`gijax.sweep.consistency.view_dispersion`), averaged over pixels seen by at least
+    two cameras' worth of weight (0 when there is none).
     """
     dtype = surrogates.dtype
     rays = panorama_rays(rig, pano, dtype)                               # (H, W, 3)
@@ -81,10 +80,7 @@ def photometric_loss(surrogates: Array, masks: Array, rig: Rig, inv_distance: Ar
 
     cols, wts = jax.vmap(one_camera, in_axes=(1, 1, 0, 0))(
         surrogates, masks, rig.rotations, rig.translations)                # (N, B, H, W, .)
-    total = jnp.sum(wts, axis=0)                                          # (B, H, W)
-    mean = jnp.sum(cols * wts[..., None], axis=0) / jnp.maximum(total, 1e-6)[..., None]
-    diff = safe_sqrt(jnp.sum((cols - mean) ** 2, axis=-1) + _PHOTO_EPS**2)  # (N, B, H, W)
-    per_pixel = jnp.sum(diff * wts, axis=0) / jnp.maximum(total, 1e-6)
+    per_pixel, total = view_dispersion(cols, wts)             # (B, H, W)
     seen = (total >= 1.5).astype(dtype)
     return jnp.sum(per_pixel * seen) / jnp.maximum(jnp.sum(seen), 1.0)
 

@@ -1,0 +1,329 @@
+"""Calibration refinement from unlabeled images.
+
+The scenes are closed forms, independent of the renderer and of the refinement's own
+projection: a textured sphere around the rig's reference point, each camera's image computed
+in NumPy float64 from the equidistant lens (r = f theta), a ray-sphere intersection and a sum
+of sinusoids of the hit direction. The true inverse distance of every panorama ray is then
+known in closed form, and serves as the starting distance maps (the classical baseline's start
+is exercised by the experiment and the command line).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gijax.calibrate import refine as ref
+from gijax.geometry.cameras import make_camera
+from gijax.geometry.panorama import Panorama
+from gijax.geometry.rig import make_rig
+from gijax.geometry.rotations import axis_angle_to_matrix
+
+SIZE = 40
+FOCAL = (SIZE / 2.0) / math.radians(97.5)
+PANO_HW = (10, 40)
+RADII = (1.6, 2.4)          # one sphere per frame, metres around the reference point
+
+
+def _dtype():
+    return jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32
+
+
+def lens(fov_deg=195.0):
+    c = (SIZE - 1) / 2.0
+    return make_camera("equidistant", dict(fx=FOCAL, fy=FOCAL, cx=c, cy=c), SIZE, SIZE, fov_deg,
+                       dtype=_dtype())
+
+
+def triangle_rig(rotations=None, translations=None, fov_deg=195.0):
+    side = 0.4
+    ang = np.deg2rad([90.0, 210.0, 330.0])
+    t = np.stack([side / math.sqrt(3) * np.cos(ang), side / math.sqrt(3) * np.sin(ang),
+                  np.zeros(3)], -1) if translations is None else translations
+    r = np.tile(np.eye(3), (3, 1, 1)) if rotations is None else rotations
+    return make_rig([lens(fov_deg) for _ in range(3)], r, t, reference=np.zeros(3),
+                    dtype=_dtype())
+
+
+def texture(d, frame):
+    """Three colour channels from sinusoids of the unit direction ``d`` (..., 3)."""
+    rng = np.random.default_rng(10 + frame)
+    out = []
+    for _ in range(3):
+        acc = 0.5 * np.ones(d.shape[:-1])
+        for _ in range(3):
+            k = rng.normal(size=3)
+            k *= rng.uniform(4.0, 7.0) / np.linalg.norm(k)
+            acc += 0.12 * np.sin(d @ k + rng.uniform(0, 2 * np.pi))
+        out.append(acc)
+    return np.clip(np.stack(out, -1), 0.0, 1.0)
+
+
+def sphere_images(rig, radius, frame):
+    """(N, SIZE, SIZE, 3) images of the sphere of ``radius`` around the origin, and masks."""
+    v, u = np.meshgrid(np.arange(SIZE, dtype=np.float64), np.arange(SIZE, dtype=np.float64),
+                       indexing="ij")
+    c = (SIZE - 1) / 2.0
+    mx, my = (u - c) / FOCAL, (v - c) / FOCAL
+    theta = np.hypot(mx, my)
+    s = np.where(theta > 0, np.sin(theta) / np.maximum(theta, 1e-12), 1.0)
+    ray_c = np.stack([s * mx, s * my, np.cos(theta)], -1)
+    inside = theta <= math.radians(97.5)
+    images, masks = [], []
+    for i in range(rig.num_cameras):
+        rot = np.asarray(rig.rotations[i], np.float64)
+        o = np.asarray(rig.translations[i], np.float64)
+        d = ray_c @ rot.T
+        b = d @ o
+        t = -b + np.sqrt(b * b - (o @ o - radius**2))
+        hit = o + t[..., None] * d
+        img = texture(hit / radius, frame)
+        images.append(np.where(inside[..., None], img, 0.0))
+        masks.append(inside.astype(np.float64))
+    return np.stack(images), np.stack(masks)
+
+
+def frames(rig):
+    ims, ms = zip(*(sphere_images(rig, r, f) for f, r in enumerate(RADII)))
+    return np.stack(ims).astype(np.float32), np.stack(ms).astype(np.float32)
+
+
+def turn(rig, cam, axis, degrees, shift=(0.0, 0.0, 0.0)):
+    axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    rots = np.asarray(rig.rotations, np.float64).copy()
+    trans = np.asarray(rig.translations, np.float64).copy()
+    rots[cam] = rots[cam] @ np.asarray(axis_angle_to_matrix(jnp.asarray(
+        axis * math.radians(degrees))))
+    trans[cam] += shift
+    return rig.replace(rotations=jnp.asarray(rots, _dtype()),
+                       translations=jnp.asarray(trans, _dtype()))
+
+
+def true_inverse_distance(n_frames=len(RADII)):
+    # The reference point is the spheres' centre: every ray reads 1 / radius.
+    return np.stack([np.full(PANO_HW, 1.0 / r) for r in RADII[:n_frames]])
+
+
+def test_a_perturbed_camera_is_recovered():
+    """Camera 2 turned by 2 degrees and moved by 15 mm; 90 steps bring it back within
+    0.25 degrees (the start is 8 times that) and its position within half the start."""
+    truth = triangle_rig()
+    images, masks = frames(truth)
+    start = turn(truth, 2, (0.3, -1.0, 0.4), 2.0, (0.0, 0.012, -0.009))
+    before = ref.gauge_aligned_errors(start, truth)
+    assert before["rotation_deg"][2] == pytest.approx(2.0, abs=1e-4)
+    config = ref.RefineConfig(steps=90, blur=(1.5, 0.7), pano_hw=PANO_HW, lr_rotation=2e-3,
+                              lr_translation=1e-3, lr_depth=0.01, min_texture=0.01)
+    result = ref.refine_rig(start, images, masks, config, initial_inv=true_inverse_distance(),
+                            progress=False)
+    after = ref.gauge_aligned_errors(result.rig, truth)
+    assert after["rotation_deg"][2] < 0.25, after
+    assert after["rotation_deg"][1] < 0.25, after
+    assert after["translation_mm"][2] < 0.5 * before["translation_mm"][2], (before, after)
+    assert result.loss_after < 0.7 * result.loss_before
+    # The gauge: camera 0 exactly as given, the camera 0-1 distance as given.
+    np.testing.assert_array_equal(np.asarray(result.rig.rotations[0]),
+                                  np.asarray(start.rotations[0]))
+    np.testing.assert_array_equal(np.asarray(result.rig.translations[0]),
+                                  np.asarray(start.translations[0]))
+    d = lambda r: np.linalg.norm(np.asarray(r.translations[1], np.float64)  # noqa: E731
+                                 - np.asarray(r.translations[0], np.float64))
+    assert d(result.rig) == pytest.approx(d(start), rel=1e-6)
+    assert result.moved["rotation_deg"][0] == 0.0
+    assert result.moved["translation_mm"][0] == 0.0
+
+
+def test_gauge_of_apply_calibration():
+    """Any update leaves camera 0 and the 0-1 distance unchanged, and moves the others."""
+    with jax.enable_x64(True):
+        rig = triangle_rig()
+        rng = np.random.default_rng(3)
+        params = ref.initial_parameters(rig, np.zeros((1, *PANO_HW)), intrinsics=True)
+        params = {k: jnp.asarray(rng.normal(size=v.shape) * 0.05) for k, v in params.items()}
+        out = ref.apply_calibration(rig, params)
+        np.testing.assert_array_equal(np.asarray(out.rotations[0]), np.asarray(rig.rotations[0]))
+        np.testing.assert_array_equal(np.asarray(out.translations[0]),
+                                      np.asarray(rig.translations[0]))
+        t = np.asarray(out.translations) - np.asarray(out.translations[0])
+        t0 = np.asarray(rig.translations) - np.asarray(rig.translations[0])
+        assert np.linalg.norm(t[1]) == pytest.approx(np.linalg.norm(t0[1]), rel=1e-12)
+        # Camera 2: translation added, rotation right-multiplied by the rotation vector's matrix.
+        np.testing.assert_allclose(np.asarray(out.translations[2]),
+                                   np.asarray(rig.translations[2]) + params["translation"][1],
+                                   rtol=0, atol=1e-15)
+        w = np.asarray(params["rotation"][1])
+        angle = np.linalg.norm(w)
+        k = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / angle
+        rodrigues = np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+        np.testing.assert_allclose(np.asarray(out.rotations[2]), rodrigues, atol=1e-14)
+        assert float(out.cameras[1].fx) == pytest.approx(FOCAL * math.exp(params["focal"][1]),
+                                                         rel=1e-12)
+        # The gauge-aligned error of a rig against itself moved rigidly and scaled is zero.
+        g = np.asarray(axis_angle_to_matrix(jnp.asarray([0.1, -0.2, 0.3])))
+        moved = rig.replace(rotations=jnp.einsum("ij,njk->nik", g, rig.rotations),
+                            translations=1.3 * rig.translations @ g.T + 0.5)
+        err = ref.gauge_aligned_errors(moved, rig)
+        np.testing.assert_allclose(err["rotation_deg"], 0.0, atol=1e-5)
+        np.testing.assert_allclose(err["translation_mm"], 0.0, atol=1e-9)
+
+
+def test_pose_gradient_matches_central_differences(quick_compiles_here):
+    """d loss / d (rotation, translation) in float64 against central differences, at a pose
+    a fraction of a degree off (bilinear samples away from pixel centres)."""
+    with jax.enable_x64(True):
+        truth = triangle_rig()
+        images, masks = frames(truth)
+        images, masks = images[:1].astype(np.float64), masks[:1].astype(np.float64)
+        prepared = ref.prepare_images(jnp.asarray(images[0]), jnp.asarray(masks[0]), 1.0, 3)[None]
+        pano = Panorama.hemisphere(*PANO_HW)
+        rng = np.random.default_rng(7)
+        params = ref.initial_parameters(truth, np.log(true_inverse_distance(1)))
+        params["rotation"] = jnp.asarray(rng.normal(size=(2, 3)) * 0.004)
+        params["translation"] = jnp.asarray(rng.normal(size=(2, 3)) * 0.004)
+        jm = jnp.asarray(masks)
+
+        def loss(rot, trans):
+            p = dict(params, rotation=rot, translation=trans)
+            return ref.refinement_loss(p, truth, prepared, jm, pano)[0]
+
+        f = jax.jit(loss)
+        grad = jax.jit(jax.grad(loss, argnums=(0, 1)))(params["rotation"], params["translation"])
+        # Within 0.1 % of the gradient's largest component: a sample crossing a pixel centre
+        # between the two difference points changes the bilinear slope there.
+        tol = 1e-3 * max(float(jnp.max(jnp.abs(g))) for g in grad)
+        h = 1e-6
+        for which, g in enumerate(grad):
+            for idx in np.ndindex(2, 3):
+                e = jnp.zeros((2, 3)).at[idx].set(h)
+                args = [params["rotation"], params["translation"]]
+                hi = list(args)
+                lo = list(args)
+                hi[which] = args[which] + e
+                lo[which] = args[which] - e
+                fd = (float(f(*hi)) - float(f(*lo))) / (2 * h)
+                assert float(g[idx]) == pytest.approx(fd, rel=1e-4, abs=tol), (which, idx)
+        assert float(jnp.max(jnp.abs(grad[0]))) > 1e-3     # the loss does depend on the pose
+
+
+def test_black_image_is_refused_with_one_line():
+    truth = triangle_rig()
+    images, masks = frames(truth)
+    images[1, 2] = 0.0
+    with pytest.raises(ValueError, match=r"^frame 1: camera cam2 has intensity contrast 0\.0000 "
+                                         r"\(std .*\), below 0\.02: too little texture"):
+        ref.refine_rig(truth, images, masks, ref.RefineConfig(steps=3, pano_hw=PANO_HW),
+                       initial_inv=true_inverse_distance(), progress=False)
+
+
+def test_frame_without_overlap_is_refused_with_one_line():
+    # Narrow lenses looking +x, -x and -y: no panorama point is seen by two cameras.
+    rots = np.stack([np.asarray(axis_angle_to_matrix(jnp.asarray(v, jnp.float64)))
+                     for v in ([0.0, math.pi / 2, 0.0], [0.0, -math.pi / 2, 0.0],
+                               [math.pi / 2, 0.0, 0.0])])
+    rig = triangle_rig(rotations=rots, fov_deg=60.0)
+    images, masks = frames(rig)
+    with pytest.raises(ValueError, match=r"^frame 0: 0\.0% of the panorama is seen by two "
+                                         r"cameras .*below 5\.0%: too little overlap"):
+        ref.refine_rig(rig, images, masks, ref.RefineConfig(steps=3, pano_hw=PANO_HW),
+                       initial_inv=np.stack([np.full((2 * PANO_HW[0], PANO_HW[1]), 0.5)] * 2),
+                       progress=False)
+
+
+def _write_frames(tmp_path, rig, images):
+    import cv2
+
+    folders = []
+    for f, frame in enumerate(images):
+        folder = tmp_path / f"frame{f}"
+        folder.mkdir()
+        for name, img in zip(rig.names, frame):
+            u8 = np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)
+            cv2.imwrite(str(folder / f"{name}.png"), u8[..., ::-1])
+        folders.append(str(folder))
+    return folders
+
+
+def test_command_writes_the_refined_rig_and_its_report(tmp_path, capsys, quick_compiles_here):
+    import json
+
+    from gijax.cli import main
+    from gijax.io.rigfile import load_rig, save_rig
+
+    truth = triangle_rig()
+    images, _ = frames(truth)
+    start = turn(truth, 2, (1.0, 0.0, 0.0), 1.0)
+    save_rig(start, tmp_path / "start.yaml")
+    folders = _write_frames(tmp_path, truth, images)
+    out, report, png = tmp_path / "refined.yaml", tmp_path / "report.json", tmp_path / "loss.png"
+    rc = main(["rig", "refine", str(tmp_path / "start.yaml"), "--frames", *folders, "--out",
+               str(out), "--steps", "6", "--scale", "1", "--start-distance", "2",
+               "--plot", str(png), "--json", str(report), "--no-progress"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    refined = load_rig(out)
+    np.testing.assert_allclose(np.asarray(refined.rotations[0]), np.asarray(start.rotations[0]),
+                               atol=1e-7)
+    doc = json.loads(report.read_text())
+    assert [c["name"] for c in doc["cameras"]] == ["cam0", "cam1", "cam2"]
+    assert doc["cameras"][0]["rotation_deg"] == 0.0
+    assert doc["cameras"][2]["rotation_deg"] > 0.0
+    assert len(doc["history"]) == 6
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "cam2:" in text and "photometric loss:" in text and "gauge: camera 0" in text
+
+
+def test_command_names_a_missing_camera_image(tmp_path, capsys):
+    from gijax.cli import main
+    from gijax.io.rigfile import save_rig
+
+    truth = triangle_rig()
+    images, _ = frames(truth)
+    save_rig(truth, tmp_path / "rig.yaml")
+    folders = _write_frames(tmp_path, truth, images[:1])
+    (tmp_path / "frame0" / "cam1.png").unlink()
+    rc = main(["rig", "refine", str(tmp_path / "rig.yaml"), "--frames", *folders, "--out",
+               str(tmp_path / "out.yaml"), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1
+    assert len(err) == 1 and "no image for camera 'cam1'" in err[0] and "frame0" in err[0], err
+    assert not (tmp_path / "out.yaml").exists()
+
+
+def test_experiment_perturbation_is_within_its_stated_bounds():
+    from experiments.calibration_refinement import perturb
+    from gijax.geometry.layouts import layout_rig
+
+    square = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]])
+    truth = layout_rig(square, np.zeros(3), masks=False)
+    for seed in (0, 1):
+        moved = ref.pose_change(truth, perturb(truth, seed))
+        assert moved["rotation_deg"][0] == 0.0 and moved["translation_mm"][0] == 0.0
+        assert all(0.5 - 1e-3 <= a <= 2.0 + 1e-3 for a in moved["rotation_deg"][1:]), moved
+        assert all(10.0 - 1e-3 <= t <= 30.0 + 1e-3 for t in moved["translation_mm"][1:]), moved
+
+
+def test_a_dataset_folder_reads_as_one_frame_per_sample(tmp_path):
+    from gijax.calibrate.frames import read_frames
+    from gijax.data.writer import write_dataset
+
+    rig = triangle_rig()
+    images, masks = frames(rig)
+    pano = Panorama.hemisphere(4, 16)
+
+    def sample(i):
+        return {"images": np.round(images[i] * 255).astype(np.uint8),
+                "distances": np.full(images.shape[1:4], RADII[i], np.float32),
+                "masks": masks[i].astype(np.uint8),
+                "pano_distance": np.full(pano.shape, RADII[i], np.float32)}
+
+    write_dataset(tmp_path / "d", sample, rig, pano, num_samples=2)
+    got, got_masks, labels = read_frames([tmp_path / "d"], rig)
+    assert labels == [f"{tmp_path / 'd'}#0", f"{tmp_path / 'd'}#1"]
+    np.testing.assert_array_equal(got, np.round(images * 255).astype(np.uint8))
+    np.testing.assert_array_equal(got_masks, masks)
+    one, _, _ = read_frames([tmp_path / "d"], rig, max_frames=1)
+    assert one.shape[0] == 1
