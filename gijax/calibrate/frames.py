@@ -31,7 +31,8 @@ def _camera_image(folder: Path, name: str) -> Path:
 
 def read_frame_folder(folder, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
     """One frame folder -> images uint8 (N, h, w, 3) and masks float32 (N, h, w)."""
-    from gijax.data.images import read_image, read_mask
+    from gijax.data.images import read_image
+    from gijax.io.masks import read_mask
 
     folder = Path(folder)
     images, masks = [], []
@@ -39,10 +40,9 @@ def read_frame_folder(folder, rig: Rig) -> tuple[np.ndarray, np.ndarray]:
         path = _camera_image(folder, name)
         img = read_image(path)
         mask_path = folder / f"{name}_mask.png"
-        mask = read_mask(mask_path) if mask_path.is_file() else np.ones(img.shape[:2], np.float32)
-        if mask.shape != img.shape[:2]:
-            raise ValueError(f"{mask_path}: mask is {mask.shape[0]}x{mask.shape[1]} but "
-                             f"{path.name} is {img.shape[0]}x{img.shape[1]}")
+        # read_mask checks the size against the image's and names both in its error.
+        mask = (read_mask(mask_path, img.shape[:2], label=f"frame {folder}, camera {name!r}")
+                if mask_path.is_file() else np.ones(img.shape[:2], np.float32))
         images.append(img)
         masks.append(mask)
     sizes = {im.shape[:2] for im in images}
