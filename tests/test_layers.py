@@ -18,15 +18,17 @@ layers, never a unit of its own layer or a higher one:
  7  nn                                         network modules and presets
  8  model                                      the whole network and its grids
  9  render                                     procedural scenes and the ray caster
-10  store, data, baseline, design, viz         trained models on disk, datasets (rendered
+10  evaluate                                   usable labels, metrics, the prediction type
+                                               and the evaluation loop
+11  store, data, baseline, design, viz         trained models on disk, datasets (rendered
                                                with ``render``), the classical baseline,
                                                layout design, figures
-11  train, export, predict                     training (writes run folders, reads them
+12  train, export, predict                     training (writes run folders, reads them
                                                back through ``store``), ONNX / TensorRT,
-                                               inference files
-12  demo, bench                                the demo, the benchmark suite
-13  cli                                        the ``gijax`` command
-14  __main__                                   ``python -m gijax``
+                                               inference and the predictors
+13  demo, bench                                the demo, the benchmark suite
+14  cli                                        the ``gijax`` command
+15  __main__                                   ``python -m gijax``
 ==  =========================================  ==============================================
 
 A new top-level module fails here until it is given a layer. Inside ``gijax/cli`` a
@@ -54,6 +56,7 @@ LAYERS = (
     ("nn",),
     ("model",),
     ("render",),
+    ("evaluate",),
     ("store", "data", "baseline", "design", "viz"),
     ("train", "export", "predict"),
     ("demo", "bench"),
