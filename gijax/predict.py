@@ -210,7 +210,7 @@ class RtssPredictor:
         sample = {"images": images}
         if masks is not None:
             sample["masks"] = masks
-        pano = self.pano or Panorama.hemisphere(160, 640)
+        pano = Panorama.hemisphere(160, 640) if self.pano is None else self.pano
         cand = (np.asarray(rtss.preset_candidates(rig, rtss.get_rtss_preset(self.preset)),
                            np.float64) if self.candidates is None else self.candidates)
         out = rtss.rtss_predict_sample(rig, sample, self.preset, candidates=cand, pano=pano)
