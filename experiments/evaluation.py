@@ -1,7 +1,7 @@
 """Evaluation of a method on a test dataset: the compiled predictors (a trained network, the
 classical RTSS baseline), the metrics over every sample, and the cache under ``evals/``.
 
-Metrics (:mod:`gijax.train.metrics`, inverse distance in 1/m): the columns compared with the
+Metrics (:mod:`gijax.evaluate.metrics`, inverse distance in 1/m): the columns compared with the
 paper's figures (``mae``, ``rmse``, ``ssim``, ``bad_0.1``, ``bad_0.4``) use the paper's
 definitions, ``gijax eval --metrics paper``: per-sample MAE / RMSE over labels inside the
 candidate range (0.5-100 m; sky and nearer pixels excluded), torchmetrics' SSIM, means over
@@ -114,7 +114,7 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
     from gijax.candidates.spec import resolve_candidates
     from gijax.model import forward as model_forward, make_grids
     from gijax.sweep.surrogate import as_float_image
-    from gijax.train.trainer import model_rig
+    from gijax.model import model_rig
 
     model, mc, train_cand = loaded_model(run_dir)
     if mc.cost_volume == "concat" and rig.num_cameras != mc.num_cameras:
@@ -189,53 +189,38 @@ def evaluate(reader, predictor: Predictor) -> tuple[dict, np.ndarray]:
     estimate; ``mae_per_sample`` lists each sample's paper MAE (None for a sample without a
     pixel in range), whose mean over the non-None entries is ``mae``.
     """
-    import jax.numpy as jnp
+    from gijax.evaluate.loop import evaluate_predictions
+    from gijax.evaluate.metrics import METRIC_SETS
+    from gijax.evaluate.prediction import Prediction
 
-    from gijax.data.loader import label_valid
-    from gijax.train.metrics import METRIC_SETS, batch_sums, summarize
+    def samples():
+        for i in range(len(reader)):
+            s = reader[i]
+            yield {"images": s["images"], "masks": s["masks"],
+                   "distance": np.asarray(s["pano_distance"], np.float32)[None]}
 
-    cand = jnp.asarray(predictor.candidates, jnp.float32)
-    far = 1.0 / float(predictor.candidates[-1])
-    parts = {m: [] for m in METRIC_SETS}
-    times, covered, labelled, first = [], 0.0, 0.0, None
-    for i in range(len(reader)):
-        s = reader[i]
-        t0 = time.perf_counter()
-        inv, est = predictor.fn(s["images"], s["masks"])
-        times.append(time.perf_counter() - t0)
-        inv, est = np.asarray(inv, np.float32), np.asarray(est, bool) & np.isfinite(np.asarray(inv))
-        dist = np.asarray(s["pano_distance"], np.float32)
-        if inv.shape != dist.shape:
-            raise ValueError(f"prediction {inv.shape} and label {dist.shape} panoramas differ "
-                             f"({reader.root} sample {i})")
-        valid = label_valid(dist)
-        covered += float(np.sum(valid & est))
-        labelled += float(np.sum(valid))
-        filled = np.where(est, inv, far).astype(np.float32)
-        for m in METRIC_SETS:
-            sums = batch_sums(jnp.asarray(filled[None]), jnp.asarray(dist[None]),
-                              jnp.asarray((valid & est)[None]), cand, metric_set=m)
-            parts[m].append({k: np.asarray(v) for k, v in sums.items()})
-        if first is None:
-            first = np.where(est, inv, np.nan)
-    if not times:
-        raise ValueError(f"{reader.root} has no samples to evaluate")
-    per_sample = {m: {k: np.concatenate([p[k] for p in ps]) for k in ps[0]}
-                  for m, ps in parts.items()}
-    joined = {m: summarize(v, m) for m, v in per_sample.items()}
+    def predict(batch):
+        inv, estimated = predictor.fn(batch["images"], batch["masks"])
+        # A batch of one (a reshape, nothing copied inside the timing).
+        return Prediction(inv_distance=inv[None], valid=estimated[None])
+
+    result = evaluate_predictions(samples(), predict, predictor.candidates,
+                                  metric_sets=METRIC_SETS, holes="unscored_far", keep=1,
+                                  name=str(reader.root))
+    joined = result.metrics
     metrics = {**joined["paper"], "metric_set": "paper",
                **{f"{k}_gijax": v for k, v in joined["gijax"].items()
                   if k not in ("samples",)}}
     # The paper's MAE of each sample (None without a pixel in range): paired comparisons of
     # two methods on the same scenes (experiments.claims.paired_difference).
-    paper = per_sample["paper"]
-    metrics["mae_per_sample"] = [float(m) if c > 0 else None for m, c in
-                                 zip(np.asarray(paper["mae"]).reshape(-1),
-                                     np.asarray(paper["count"]).reshape(-1))]
-    metrics["coverage"] = covered / max(labelled, 1.0)
-    metrics["time_ms"] = 1000.0 * float(np.median(times))
-    metrics["time_ms_mean"] = 1000.0 * float(np.mean(times))
-    return metrics, first
+    metrics["mae_per_sample"] = [m["mae"] if m["pixels"] > 0 else None
+                                 for m in result.per_scene("paper")]
+    metrics["coverage"] = result.label_coverage
+    metrics["time_ms"] = 1000.0 * float(np.median(result.seconds))
+    metrics["time_ms_mean"] = 1000.0 * float(np.mean(result.seconds))
+    first, _ = result.examples[0]
+    return metrics, np.where(first.valid & np.isfinite(first.inv_distance),
+                             first.inv_distance, np.nan)
 
 
 def eval_key(**fields) -> str:

@@ -117,7 +117,7 @@ def validate(layouts: dict, spec_of: dict, cfg: dict, ckpt: str | None, seed: in
     from gijax.design import layout_rig
     from gijax.geometry.panorama import Panorama
     from gijax.render import render_sample
-    from gijax.train.metrics import evaluate_batch
+    from gijax.evaluate.metrics import evaluate_batch
 
     pano = Panorama.hemisphere(cfg["pano_h"], 4 * cfg["pano_h"])
     model = None

@@ -231,7 +231,7 @@ def ensure_adapted(work: Path, sizes: Sizes, run: dict, rig: str, loss: str, see
     from gijax.candidates.spec import resolve_candidates
     from gijax.train.adapt import AdaptConfig, adapt_candidates, state_folder
     from gijax.train.sources import dataset_stream_factory, open_dataset
-    from gijax.train.trainer import model_rig
+    from gijax.model import model_rig
 
     data = work / "data" / f"adapt-{rig}"
     key = eval_key(train=run["command"], data=str(data), loss=loss, seed=seed,

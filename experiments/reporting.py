@@ -74,10 +74,10 @@ def save_figure(path: Path, sample: dict, panels: list, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from gijax.data.loader import label_valid
+    from gijax.evaluate.labels import usable_label
 
     dist = np.asarray(sample["pano_distance"], np.float64)
-    valid = label_valid(dist)
+    valid = usable_label(dist)
     # The label as the metrics see it: inverse distance clamped to the 0.5-100 m range.
     gt = np.where(valid, np.clip(1.0 / np.maximum(dist, 1e-6), 0.01, 2.0), np.nan)
     vmax = float(np.nanpercentile(gt, 99)) if np.any(valid) else 1.0

@@ -3,7 +3,8 @@
 For each rig it renders a new scene with exact labels, runs the bundled learned model (with its
 training candidates, with the paper's list recomputed for the rig, the closed-form GI at the
 rig's camera spacing, and with gijax's rig-aware GI list) and the classical RTSS baseline,
-prints MAE / RMSE / SSIM (the paper's definitions, :mod:`gijax.train.metrics`) and time, writes
+prints MAE / RMSE / SSIM (the paper's definitions, :mod:`gijax.evaluate.metrics`, scored by
+:func:`gijax.evaluate.loop.evaluate_predictions`) and time, writes
 one figure (inputs, ground truth, predictions, error maps) and a coloured point cloud of the
 learned prediction on the training rig.
 """
@@ -12,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import time
 from pathlib import Path
 
 import numpy as np
@@ -32,24 +32,27 @@ class MethodResult:
     metrics: dict
 
 
-def _metrics(inv_pred: np.ndarray, distance: np.ndarray, candidates) -> dict:
-    from gijax.train.metrics import evaluate_batch
+def _evaluate(predictor, rig, sample, candidates) -> tuple[np.ndarray, float, dict, object]:
+    """One method on the demo's scene: (inverse distance, NaN where it gives nothing; wall
+    seconds of the call, first-call compilation included; the paper's metrics; the
+    prediction)."""
+    from gijax.evaluate.loop import evaluate_predictions
 
-    ok = np.isfinite(inv_pred)
-    label_ok = np.isfinite(distance) & (distance > 0)
+    made = {}
+
+    def run(_batch):
+        pred = predictor.predict(rig, sample["images"], sample["masks"])
+        made["pred"] = pred
+        return pred.replace(inv_distance=pred.inv_distance[None], valid=pred.valid[None])
+
     # Pixels a method leaves empty are scored by coverage, not by a made-up value; SSIM needs
     # a full image, so empty pixels take the method's own mean there.
-    filled = np.where(ok, inv_pred, np.nanmean(inv_pred) if ok.any() else 0.0)
-    out = evaluate_batch(filled[None].astype(np.float32), distance[None], (ok & label_ok)[None],
-                         np.asarray(candidates, np.float32), metric_set="paper")
-    out["coverage"] = float((ok & label_ok).sum() / max(label_ok.sum(), 1))
-    return out
-
-
-def _timed(fn):
-    t0 = time.perf_counter()
-    out = fn()
-    return out, time.perf_counter() - t0
+    result = evaluate_predictions([{"distance": sample["pano_distance"][None]}], run,
+                                  np.asarray(candidates, np.float32), holes="unscored_mean")
+    pred = made["pred"]
+    metrics = {**result.metrics["paper"], "coverage": result.label_coverage}
+    inv = np.where(pred.valid, pred.inv_distance, np.nan)
+    return inv, result.seconds[0], metrics, pred
 
 
 def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
@@ -63,13 +66,12 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     """
     from tqdm import tqdm
 
-    from gijax.baseline.rtss import rtss_predict_sample
     from gijax.candidates import rig_gi_candidates, spacing_gi_candidates
     from gijax.geometry.layouts import builtin_rig
     from gijax.geometry.panorama_frame import panorama_rotation
     from gijax.geometry.rig import scale_rig
     from gijax.model import model_panorama
-    from gijax.predict import predict
+    from gijax.predict import LearnedPredictor, RtssPredictor
     from gijax.render import render_sample
     from gijax.store import load_model
     from gijax.viz.pointcloud import panorama_points, write_ply
@@ -102,19 +104,17 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
                  "rig-aware GI (gijax)": np.asarray(rig_gi_candidates(rig, n))}
         for label, cand in cands.items():
             bar.set_postfix_str(f"{name}: {config.name} ({label})")
-            res, secs = _timed(lambda: predict(net, small, sample["images"], sample["masks"],
-                                               cand, pano=pano))
-            inv = np.where(res["valid"], res["inv_distance"], np.nan)
-            methods.append(MethodResult(f"{config.name} {label}", inv, secs,
-                                        _metrics(inv, sample["pano_distance"], cand)))
+            inv, secs, metrics, res = _evaluate(LearnedPredictor(net, cand, pano), small, sample,
+                                                cand)
+            methods.append(MethodResult(f"{config.name} {label}", inv, secs, metrics))
             if cloud is None:
                 cloud = (res, small)
             bar.update(1)
         bar.set_postfix_str(f"{name}: {baseline}")
-        res, secs = _timed(lambda: rtss_predict_sample(small, sample, baseline, pano=pano))
-        methods.append(MethodResult(baseline, np.asarray(res["inv_distance"]), secs,
-                                    _metrics(np.asarray(res["inv_distance"]),
-                                             sample["pano_distance"], train_cand)))
+        # The baseline's figures are on the model's training range, like the learned rows.
+        inv, secs, metrics, _ = _evaluate(RtssPredictor(baseline, pano=pano, colours=False),
+                                          small, sample, train_cand)
+        methods.append(MethodResult(baseline, inv, secs, metrics))
         bar.update(1)
         table[name] = {m.name: {**m.metrics, "seconds": m.seconds} for m in methods}
         panels.append((name, sample, methods))

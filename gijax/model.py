@@ -89,6 +89,12 @@ jax.tree_util.register_dataclass(
     meta_fields=[])
 
 
+def model_rig(rig: Rig) -> Rig:
+    """The rig as the network needs it: its static masks are not used inside the model (per
+    sample masks are an input), so they are dropped to keep them out of every call's arguments."""
+    return rig.replace(masks=tuple(None for _ in rig.masks))
+
+
 def model_panorama(config: ModelConfig, coverage: str | None = None) -> Panorama:
     """The output panorama of ``config`` for ``coverage`` ('hemisphere' or 'sphere'; None: the
     coverage it was trained on). Its own coverage is ``config.output_hw``; the other one keeps

@@ -1,5 +1,14 @@
 """Inference: raw fisheye images -> distance panorama, and the files that show it.
 
+Every method's result is a :class:`gijax.evaluate.prediction.Prediction`. The predictors of
+one sample share one call, ``predict(rig, images, masks=None, log=None)``: the learned model
+(:class:`LearnedPredictor`, around :func:`predict`), the classical baseline
+(:class:`RtssPredictor`) and an exported ONNX file
+(:class:`gijax.export.ort_predict.OnnxPredictor`). For evaluation over a dataset,
+:func:`learned_batch_predictor` and :func:`rtss_batch_predictor` predict whole batches for
+:func:`gijax.evaluate.loop.evaluate_predictions`, whose label batches for the baseline come
+from :func:`label_batches`.
+
 :func:`predict` has no side effects but is not traceable: it is the eager edge for one sample
 (numpy in, numpy out; inputs checked with errors that name them). Images of another size are
 handled by :func:`fit_images`, the one size policy of every method: resized when the aspect
@@ -34,13 +43,15 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from gijax.evaluate.labels import usable_label
+from gijax.evaluate.prediction import Prediction
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import coverage_of, panorama_rays, panorama_rotation
 from gijax.data.images import fit_images
 from gijax.geometry.rig import Rig, project_rig_points
 from gijax.io.paths import atomic_path, write_bytes_atomic
 from gijax.model import (OmniStereoNet, check_candidates, coverage_note, forward, make_grids,
-                         model_panorama)
+                         model_panorama, model_rig)
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
 from gijax.sweep.surrogate import as_float_image, check_images
@@ -80,7 +91,7 @@ def point_colours(rig: Rig, images, masks, distance, pano: Panorama | None = Non
     if masks is not None:
         rig = rig.replace(masks=tuple(jnp.asarray(m, jnp.float32) for m in masks))
     distance = np.asarray(distance, np.float32)
-    distance = np.where(np.isfinite(distance) & (distance > 0), distance, 1.0)
+    distance = np.where(usable_label(distance), distance, 1.0)
     pano = pano or Panorama.hemisphere(*distance.shape)
     if pano.shape != distance.shape:
         raise ValueError(f"distance has shape {distance.shape} but the panorama is "
@@ -97,7 +108,7 @@ def model_size(config: ModelConfig, rig: Rig) -> tuple[int, int]:
 
 
 def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
-            pano: Panorama | None = None) -> dict:
+            pano: Panorama | None = None) -> Prediction:
     """Distance panorama of one sample.
 
     Args:
@@ -114,10 +125,10 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
         model's own (:func:`gijax.model.model_panorama`).
 
     Returns:
-      numpy dict: ``inv_distance`` (H, W) 1/m, ``distance`` (H, W) m, ``prob`` (D, H, W),
-      ``entropy`` (H, W) nats, ``valid`` (H, W) bool, ``colour`` (H, W, 3) in [0, 1] (the
-      image colour at each predicted point), ``candidates`` (D,) and ``panorama`` (the
-      :class:`Panorama` of those maps).
+      a :class:`Prediction` of numpy arrays: ``inv_distance`` (H, W) 1/m, ``distance`` (H, W)
+      m, ``prob`` (D, H, W), ``entropy`` (H, W) nats, ``valid`` (H, W) bool, ``colour``
+      (H, W, 3) in [0, 1] (the image colour at each predicted point), ``candidates`` (D,) and
+      ``panorama`` (the :class:`Panorama` of those maps).
     """
     config = model.config
     images = np.asarray(images)
@@ -154,11 +165,115 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
     cand = jnp.asarray(candidates, jnp.float32)
     out = _forward(view, images[None], jnp.asarray(masks, jnp.float32)[None], run_rig, cand,
                    pano)
-    result = {k: np.asarray(v[0]) for k, v in out.items()}
-    result["colour"] = point_colours(run_rig, images, masks, out["distance"][0], pano)
-    result["candidates"] = np.asarray(candidates, np.float64)
-    result["panorama"] = pano
-    return result
+    maps = {k: np.asarray(out[k][0]) for k in ("inv_distance", "distance", "prob", "entropy",
+                                                "valid")}
+    return Prediction(**maps,
+                      colour=point_colours(run_rig, images, masks, out["distance"][0], pano),
+                      candidates=np.asarray(candidates, np.float64), panorama=pano)
+
+
+class LearnedPredictor:
+    """A learned model with its candidates and output panorama, as a :class:`Predictor`
+    (:func:`predict` for each sample)."""
+
+    def __init__(self, model: OmniStereoNet, candidates, pano: Panorama | None = None):
+        self.model = model
+        self.candidates = np.asarray(candidates, np.float64)
+        self.pano = pano
+
+    def predict(self, rig: Rig, images, masks=None, log=None) -> Prediction:
+        return predict(self.model, rig, images, masks, self.candidates, log=log, pano=self.pano)
+
+
+class RtssPredictor:
+    """The classical baseline (an RTSS preset) as a :class:`Predictor`.
+
+    Images of the rig's aspect ratio but another size are matched at their own size, the
+    lenses rescaled (:func:`fit_images` without a target size). ``candidates`` None takes the
+    preset's own list for the rig; ``pano`` None the hemisphere of the preset's default size
+    (160 x 640). The result has no ``entropy`` or ``prob``: winner-take-all has no candidate
+    distribution, and a constant map would read as "certain everywhere". ``colours`` False
+    skips the colour panorama (it costs a projection into every camera).
+    """
+
+    def __init__(self, preset: str = "RS-E32", candidates=None, pano: Panorama | None = None,
+                 colours: bool = True):
+        self.preset = preset
+        self.candidates = None if candidates is None else np.asarray(candidates, np.float64)
+        self.pano = pano
+        self.colours = colours
+
+    def predict(self, rig: Rig, images, masks=None, log=None) -> Prediction:
+        from gijax.baseline import rtss        # looked up at call time, like every entry point
+
+        rig, images, masks = fit_images(rig, np.asarray(images), masks, None, log=log)
+        sample = {"images": images}
+        if masks is not None:
+            sample["masks"] = masks
+        pano = Panorama.hemisphere(160, 640) if self.pano is None else self.pano
+        cand = (np.asarray(rtss.preset_candidates(rig, rtss.get_rtss_preset(self.preset)),
+                           np.float64) if self.candidates is None else self.candidates)
+        out = rtss.rtss_predict_sample(rig, sample, self.preset, candidates=cand, pano=pano)
+        distance = np.asarray(out["distance"], np.float32)
+        return Prediction(
+            inv_distance=np.asarray(out["inv_distance"], np.float32), distance=distance,
+            valid=np.asarray(out["valid"], bool), candidates=cand, panorama=pano,
+            colour=point_colours(rig, images, masks, distance, pano) if self.colours else None)
+
+
+def learned_batch_predictor(model: OmniStereoNet, rig: Rig, candidates, pano: Panorama):
+    """``batch -> Prediction`` of a learned model on batches of surrogate images (``images``
+    (B, Ncam, Hs, Ws, 3), ``masks`` (B, Ncam, Hs, Ws), as :class:`gijax.data.Loader` yields
+    them) for the output panorama ``pano``; compiled once per batch shape. The network gives
+    an estimate at every pixel."""
+    graphdef, state = nnx.split(model)
+
+    @jax.jit
+    def run(state, images, masks, rig, cand):
+        return nnx.merge(graphdef, state)(images, masks, rig, cand, pano)["inv_distance"]
+
+    cand = jnp.asarray(candidates, jnp.float32)
+    run_rig = model_rig(rig)
+
+    def predict_batch(batch: dict) -> Prediction:
+        inv = run(state, jnp.asarray(batch["images"]), jnp.asarray(batch["masks"]), run_rig,
+                  cand)
+        return Prediction(inv_distance=inv, valid=jnp.ones(inv.shape, bool))
+
+    return predict_batch
+
+
+def label_batches(reader, batch_size: int):
+    """The labels of a dataset reader in order, in batches: ``index`` (B,), ``distance``
+    (B, H, W) float32 metres and ``valid`` (B, H, W) (usable labels). For predictors that read
+    each sample's raw images themselves (:func:`rtss_batch_predictor`)."""
+    for start in range(0, len(reader), batch_size):
+        indices = np.arange(start, min(start + batch_size, len(reader)))
+        dist = np.stack([np.asarray(reader[int(i)]["pano_distance"], np.float32)
+                         for i in indices])
+        yield {"index": indices, "distance": dist, "valid": usable_label(dist)}
+
+
+def rtss_batch_predictor(reader, rig: Rig, candidates, pano: Panorama, config):
+    """``batch -> Prediction`` of the classical baseline (an RTSS configuration) on the raw
+    fisheye images of each sample of ``reader`` named by ``batch['index']``; ``rig`` at the
+    images' size."""
+    from gijax.baseline.rtss import rtss_predict
+
+    cand = jnp.asarray(candidates, jnp.float32)
+
+    def predict_batch(batch: dict) -> Prediction:
+        invs, valids = [], []
+        for i in batch["index"]:
+            s = reader[int(i)]
+            images = np.asarray(s["images"], np.float32) / 255.0
+            out = rtss_predict(rig, images, np.asarray(s["masks"], np.float32), cand, pano,
+                               config)
+            invs.append(out["inv_distance"])
+            valids.append(out["valid"])
+        return Prediction(inv_distance=jnp.stack(invs), valid=jnp.stack(valids))
+
+    return predict_batch
 
 
 INVALID = ("invalid pixels (valid = False): NaN in distance.npy, 0 in valid.png and False in "
@@ -171,7 +286,7 @@ def mark_invalid(result: dict) -> dict:
     False (the convention of every written file), whichever method produced it. A distance
     that is not a finite positive number is invalid too, so no file ever holds inf."""
     distance = np.asarray(result["distance"], np.float32)
-    valid = np.asarray(result["valid"], bool) & np.isfinite(distance) & (distance > 0)
+    valid = np.asarray(result["valid"], bool) & usable_label(distance)
     out = dict(result, valid=valid)
     for key in ("distance", "inv_distance", "entropy"):
         if key in result:

@@ -47,6 +47,20 @@ def _session(path):
     return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
 
 
+def test_onnx_predictor_gives_the_shared_prediction_type(setup):
+    from gijax.evaluate.prediction import Prediction, Predictor
+
+    s = setup
+    pred = OnnxPredictor(s["baked"].path, providers=["CPUExecutionProvider"])
+    out = pred.predict(s["rig"], s["images"][0], s["masks"][0])
+    assert isinstance(pred, Predictor) and isinstance(out, Prediction)
+    # What an exported model gives: no candidate distribution and no colours.
+    assert set(out) == {"inv_distance", "distance", "entropy", "valid", "candidates",
+                        "panorama"}
+    assert out.prob is None and out.valid.dtype == bool
+    np.testing.assert_array_equal(out["inv_distance"], out.inv_distance)
+
+
 def test_baked_export_matches_jax(setup):
     s = setup
     assert s["baked"].metadata["mode"] == "baked"

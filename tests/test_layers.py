@@ -18,17 +18,19 @@ layers, never a unit of its own layer or a higher one:
  7  nn                                         network modules and presets
  8  model                                      the whole network and its grids
  9  render                                     procedural scenes and the ray caster
-10  store, data, baseline, design, viz         trained models on disk, datasets (rendered
+10  evaluate                                   usable labels, metrics, the prediction type
+                                               and the evaluation loop
+11  store, data, baseline, design, viz         trained models on disk, datasets (rendered
                                                with ``render``), the classical baseline,
                                                layout design, figures
-11  calibrate                                  calibration refinement from unlabeled
+12  calibrate                                  calibration refinement from unlabeled
                                                images (uses ``baseline`` to start)
-12  train, export, predict                     training (writes run folders, reads them
+13  train, export, predict                     training (writes run folders, reads them
                                                back through ``store``), ONNX / TensorRT,
-                                               inference files
-13  demo, bench                                the demo, the benchmark suite
-14  cli                                        the ``gijax`` command
-15  __main__                                   ``python -m gijax``
+                                               inference and the predictors
+14  demo, bench                                the demo, the benchmark suite
+15  cli                                        the ``gijax`` command
+16  __main__                                   ``python -m gijax``
 ==  =========================================  ==============================================
 
 A new top-level module fails here until it is given a layer. Inside ``gijax/cli`` a
@@ -56,6 +58,7 @@ LAYERS = (
     ("nn",),
     ("model",),
     ("render",),
+    ("evaluate",),
     ("store", "data", "baseline", "design", "viz"),
     ("calibrate",),
     ("train", "export", "predict"),

@@ -21,7 +21,7 @@ from gijax.geometry.rig import scale_rig
 from gijax.model import create_model
 from gijax.nn.presets import ModelConfig
 from gijax.train.adapt import AdaptConfig, adapt_candidates, adaptation_loss
-from gijax.train.trainer import model_rig
+from gijax.model import model_rig
 
 TINY = ModelConfig(
     name="tiny-adapt", num_candidates=8, candidates="ev", loss="volume", features="plain",

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gijax.data.augment import augment_masks, augmentation_rng, erase_rectangle
-from gijax.data.loader import Loader, label_valid
+from gijax.data.loader import Loader
+from gijax.evaluate.labels import usable_label
 from gijax.data.reader import DatasetReader
 from gijax.data.writer import write_dataset
 from gijax.geometry.panorama import Panorama
@@ -77,7 +78,7 @@ def test_batch_shapes_and_values(reader):
 
 def test_label_valid():
     d = np.array([np.nan, np.inf, -1.0, 0.0, 0.5, 1e6], np.float32)
-    np.testing.assert_array_equal(label_valid(d), [False, False, False, False, True, True])
+    np.testing.assert_array_equal(usable_label(d), [False, False, False, False, True, True])
 
 
 def test_deterministic_per_seed_and_epoch(reader):

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from gijax.train.metrics import batch_sums, evaluate_batch, paper_ssim, ssim_map, summarize
+from gijax.evaluate.metrics import batch_sums, evaluate_batch, paper_ssim, ssim_map, summarize
 
 CAND = jnp.array([0.5, 1.0, 2.0, 4.0], jnp.float32)      # inverse range 0.25..2
 

@@ -205,7 +205,7 @@ def test_grad_accum_and_bf16_step_agree_with_plain_step():
     from gijax.model import create_model
     from gijax.train import step as S
     from gijax.train.losses import model_loss
-    from gijax.train.trainer import model_rig
+    from gijax.model import model_rig
 
     cfg = _config()
     mc = cfg.model_config()

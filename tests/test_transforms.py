@@ -47,7 +47,8 @@ from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
 from gijax.sweep import consistency, grid, sample, surrogate
 from gijax.calibrate import refine as calib_refine
 from gijax.nn import cost_volume, layers, refine, regressor, spherical, upsample
-from gijax.train import losses, metrics
+from gijax.evaluate import labels, metrics
+from gijax.train import losses
 
 # gijax.design re-exports the function `objective` under the submodule's name.
 objective = importlib.import_module("gijax.design.objective")
@@ -55,8 +56,8 @@ objective = importlib.import_module("gijax.design.objective")
 pytestmark = pytest.mark.usefixtures("quick_compiles")
 
 COVERED_PACKAGES = ("gijax.geometry", "gijax.candidates", "gijax.sweep", "gijax.baseline",
-                    "gijax.design", "gijax.nn", "gijax.calibrate")
-COVERED_MODULES = ("gijax.train.losses", "gijax.train.metrics", "gijax.sampling",
+                    "gijax.design", "gijax.nn", "gijax.calibrate", "gijax.evaluate")
+COVERED_MODULES = ("gijax.train.losses", "gijax.sampling",
                    "gijax.numerics")
 SEEDS = (0, 1)
 
@@ -111,7 +112,7 @@ NOT_TRACED = {
     "gijax.candidates.validation.guard_candidates": "argument check",
     "gijax.candidates.rig_aware.require_coverage": "argument check",
     "gijax.sweep.surrogate.check_images": "shape check (raises, returns nothing)",
-    "gijax.train.metrics.check_metric_set": "validates a metric-set name",
+    "gijax.evaluate.metrics.check_metric_set": "validates a metric-set name",
     # reports, files, Python values
     "gijax.geometry.cameras.camera_params": "Python floats for printing and files",
     "gijax.geometry.rig.pairwise_baselines": "NumPy report of concrete poses",
@@ -140,7 +141,6 @@ NOT_TRACED = {
     "gijax.candidates.spec.read_candidate_file": "reads a file",
     "gijax.candidates.spec.resolve_candidates": "command-line spec (names, files) to NumPy",
     "gijax.baseline.rtss.rtss_predict_sample": "NumPy outputs for one loaded sample",
-    "gijax.train.metrics.summarize": "Python numbers from accumulated values",
     "gijax.calibrate.refine.check_texture": "argument check of concrete measures",
     "gijax.calibrate.refine.check_overlap": "argument check of concrete measures",
     "gijax.calibrate.refine.frame_texture": "NumPy report of a concrete frame",
@@ -155,7 +155,9 @@ NOT_TRACED = {
     "gijax.calibrate.frames.read_frame_folder": "reads files",
     "gijax.calibrate.frames.read_frames": "reads files",
     "gijax.calibrate.plots.plot_loss_curve": "writes a PNG",
-    "gijax.train.metrics.evaluate_batch": "Python numbers",
+    "gijax.evaluate.metrics.summarize": "Python numbers from accumulated values",
+    "gijax.evaluate.metrics.evaluate_batch": "Python numbers",
+    "gijax.evaluate.loop.evaluate_predictions": "evaluation loop over batches (Python numbers)",
     # constants of static arguments (nothing to trace)
     "gijax.geometry.cameras.pixel_grid": "constant of static image sizes",
     "gijax.geometry.panorama.lonlat_grid": "constant of a static panorama",
@@ -165,7 +167,7 @@ NOT_TRACED = {
     "gijax.geometry.layouts.builtin_rig": "rig from a name",
     "gijax.geometry.layouts.layout_rig": "rig from NumPy positions (an input edge)",
     "gijax.design.objective.design_camera": "camera of a static spec",
-    "gijax.train.metrics.gaussian_window_1d": "NumPy constant of static sizes",
+    "gijax.evaluate.metrics.gaussian_window_1d": "NumPy constant of static sizes",
     "gijax.numerics.tiny": "Python float of a dtype",
     "gijax.numerics.guard_floor": "Python float of a dtype",
     "gijax.numerics.float_dtype": "a dtype",
@@ -1248,13 +1250,19 @@ def _prob(seed, b=1, h=12, w=12):
     return jax.nn.softmax(jnp.asarray(logits, F64), axis=1)
 
 
-@case(losses.label_mask)
+@case(labels.usable_label)
+def _usable_label(seed):
+    _, d, _, _ = _labels(seed)
+    return (d,)
+
+
+@case(labels.label_mask)
 def _label_mask(seed):
     _, d, valid, _ = _labels(seed)
     return d, valid
 
 
-@case(losses.clamped_inverse, diff=(0, 1))
+@case(labels.clamped_inverse, diff=(0, 1))
 def _clamped_inverse(seed):
     _, d, _, c = _labels(seed)
     return d, c
@@ -1298,7 +1306,7 @@ for _fn in (metrics.ssim_map, metrics.paper_ssim):
 for _fn in (metrics.inverse_errors, metrics.paper_sample_metrics, metrics.gijax_batch_sums):
     case(_fn, diff=(0,), fd_tol=1e-4,
          degenerate=[("perfect prediction", lambda: (
-             losses.clamped_inverse(*_labels(0)[1:4:2]), *_labels(0)[1:]), False)])(_labels)
+             labels.clamped_inverse(*_labels(0)[1:4:2]), *_labels(0)[1:]), False)])(_labels)
 
 
 @case(metrics.paper_label_mask)

@@ -77,7 +77,7 @@ def run(args) -> int:
     from gijax.store import load_model
     from gijax.train.adapt import AdaptConfig, adapt_candidates
     from gijax.train.sources import dataset_stream_factory, open_dataset
-    from gijax.train.trainer import model_rig
+    from gijax.model import model_rig
 
     check_output_file(args.out, "--out")
     config = AdaptConfig(loss=args.loss, steps=args.steps, lr=args.lr, batch_size=args.batch,

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 METHODS = ("net", "rtss")
-# One line per --metrics choice, written beside the numbers (gijax.train.metrics has the
+# One line per --metrics choice, written beside the numbers (gijax.evaluate.metrics has the
 # full definitions).
 METRIC_DEFINITIONS = {
     "paper": ("the paper's: per-sample MAE / RMSE / bad rates over labels inside the candidate "
@@ -33,7 +32,7 @@ def register(subparsers) -> None:
         description=(
             "Evaluate a run folder on a dataset: MAE, RMSE and SSIM on inverse distance (1/m), "
             "the bad-pixel rates > 0.1 and > 0.4 1/m, time per sample and peak memory. "
-            "--metrics picks the definitions (see gijax.train.metrics): 'paper' (default) as "
+            "--metrics picks the definitions (see gijax.evaluate.metrics): 'paper' (default) as "
             "the paper's tables computed them, MAE / RMSE / bad rates per sample over labels "
             "inside the candidate range (0.5-100 m; sky and nearer pixels left out) and "
             "torchmetrics' SSIM (data range from the sample, reflect padding, 5-px border "
@@ -82,61 +81,6 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _net_predictor(model, rig, candidates, pano):
-    import jax
-    import jax.numpy as jnp
-    from flax import nnx
-
-    graphdef, state = nnx.split(model)
-
-    @jax.jit
-    def forward(state, images, masks, rig, cand):
-        return nnx.merge(graphdef, state)(images, masks, rig, cand, pano)["inv_distance"]
-
-    cand = jnp.asarray(candidates, jnp.float32)
-    from gijax.train.trainer import model_rig
-
-    mrig = model_rig(rig)
-
-    def predict(batch, _reader, _indices):
-        return forward(state, jnp.asarray(batch["images"]), jnp.asarray(batch["masks"]), mrig, cand)
-
-    return predict
-
-
-def _rtss_predictor(rig, candidates, pano, config):
-    """RTSS on the raw fisheye images of each sample: (inverse distance, estimated) per batch."""
-    import jax.numpy as jnp
-
-    from gijax.baseline.rtss import rtss_predict
-
-    cand = jnp.asarray(candidates, jnp.float32)
-
-    def predict(_batch, reader, indices):
-        invs, valids = [], []
-        for i in indices:
-            s = reader[int(i)]
-            images = np.asarray(s["images"], np.float32) / 255.0
-            out = rtss_predict(rig, images, np.asarray(s["masks"], np.float32), cand, pano,
-                               config)
-            invs.append(out["inv_distance"])
-            valids.append(out["valid"])
-        return jnp.stack(invs), jnp.stack(valids)
-
-    return predict
-
-
-def _label_batches(reader, batch: int):
-    """The dataset's labels in order, in batches (the baseline reads the raw images itself)."""
-    from gijax.data.loader import label_valid
-
-    for start in range(0, len(reader), batch):
-        indices = np.arange(start, min(start + batch, len(reader)))
-        dist = np.stack([np.asarray(reader[int(i)]["pano_distance"], np.float32)
-                         for i in indices])
-        yield {"index": indices, "distance": dist, "valid": label_valid(dist)}
-
-
 def _rtss_setup(args, rig, reader):
     """The rig at the dataset's image size, the RTSS configuration, its candidates with their
     description, and the output panorama (the dataset's label panorama)."""
@@ -159,13 +103,13 @@ def _rtss_setup(args, rig, reader):
 
 def run(args) -> int:
     import jax
-    import jax.numpy as jnp
 
-    from gijax.train.metrics import batch_sums, summarize
-    from gijax.train.sources import open_dataset, validation_batches
     from gijax.bench.memory import device_peak_mib, host_peak_rss_mib
     from gijax.candidates.spec import resolve_candidates
+    from gijax.evaluate.loop import evaluate_predictions
+    from gijax.predict import label_batches, learned_batch_predictor, rtss_batch_predictor
     from gijax.store import load_model
+    from gijax.train.sources import open_dataset, validation_batches
 
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1; found {args.batch}")
@@ -199,37 +143,21 @@ def run(args) -> int:
         note = coverage_note(mc, reader.pano)
         if note:
             print(note, file=sys.stderr)
-        predict = _net_predictor(model, rig, cand, reader.pano)
+        predict = learned_batch_predictor(model, rig, cand, reader.pano)
         batches = validation_batches(reader, rig, args.batch, mc.surrogate_hw, 0)
         name = mc.name
     else:
         rig, config, cand, how, pano = _rtss_setup(args, rig, reader)
-        predict = _rtss_predictor(rig, cand, pano, config)
-        batches = _label_batches(reader, args.batch)
+        predict = rtss_batch_predictor(reader, rig, cand, pano, config)
+        batches = label_batches(reader, args.batch)
         name = f"{config.name}/rtss"
     print(f"candidates: {how}; {len(cand)} from {float(cand[0]):.3f} to {float(cand[-1]):.3f} m",
           file=sys.stderr)
-    jcand = jnp.asarray(cand, jnp.float32)
-    parts, times, seen = [], [], 0
-    for batch in batches:
-        if args.limit and seen >= args.limit:
-            break
-        indices = batch["index"]
-        if seen == 0:                       # compile outside the timing
-            jax.block_until_ready(predict(batch, reader, indices))
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(predict(batch, reader, indices))
-        times.append((time.perf_counter() - t0) / len(indices))
-        # The baseline marks the pixels it estimated; the network estimates every pixel.
-        inv, estimated = out if isinstance(out, tuple) else (out, None)
-        sums = batch_sums(inv, jnp.asarray(batch["distance"]), jnp.asarray(batch["valid"]), jcand,
-                          metric_set=args.metrics, pred_valid=estimated)
-        parts.append(jax.tree.map(np.asarray, sums))
-        seen += len(indices)
-    if not parts:
-        raise ValueError(f"evaluation data {args.data} yielded no samples")
-    metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
-                        args.metrics)
+    evaluation = evaluate_predictions(batches, predict, cand, metric_sets=(args.metrics,),
+                                      limit=args.limit, warmup=True,
+                                      name=f"evaluation data {args.data}")
+    metrics = evaluation.metrics[args.metrics]
+    times = evaluation.seconds
     bad = sorted(k for k, v in metrics.items()
                  if isinstance(v, float) and not np.isfinite(v))
     if bad:

@@ -126,12 +126,10 @@ def run(args) -> int:
 
 def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     from gijax.candidates.spec import resolve_candidates
-    from gijax.predict import predict
-
-    from gijax.store import model_or_untrained
-
     from gijax.cli.options import panorama_from_args
     from gijax.model import model_panorama
+    from gijax.predict import LearnedPredictor
+    from gijax.store import model_or_untrained
 
     model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
     hemi = model_panorama(config, "hemisphere").shape
@@ -139,7 +137,7 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
                                          config.d_min, config.d_max, train=train_cand,
                                          kind=config.candidates)
-    result = predict(model, rig, images, masks, candidates, log=print, pano=pano)
+    result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args.out, title)
     return 0
@@ -163,10 +161,10 @@ def _report(result: dict, rig, out: str, title: str) -> None:
 def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     """The classical baseline at the images' own size; the panorama by default the paper's
     angular resolution (160 x 640 for the hemisphere)."""
-    from gijax.baseline.rtss import choose_candidates, get_rtss_preset, rtss_predict_sample
+    from gijax.baseline.rtss import choose_candidates, get_rtss_preset
     from gijax.cli.options import panorama_from_args
     from gijax.data.images import fit_images
-    from gijax.predict import point_colours
+    from gijax.predict import RtssPredictor
 
     config = get_rtss_preset(args.rtss_preset)
     rig, pano = panorama_from_args(args, rig, (160, 640))
@@ -174,21 +172,7 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     candidates, how = choose_candidates(args.candidates, rig, config)
     print(f"candidates: {how}; {len(candidates)} from {float(candidates[0]):.3f} to "
           f"{float(candidates[-1]):.3f} m")
-    sample = {"images": images}
-    if masks is not None:
-        sample["masks"] = masks
-    result = rtss_predict_sample(rig, sample, args.rtss_preset, candidates=candidates, pano=pano)
-    valid = np.asarray(result["valid"], bool)
-    result = {
-        "inv_distance": np.asarray(result["inv_distance"], np.float32),
-        "distance": np.asarray(result["distance"], np.float32),
-        "valid": valid,
-        # No "entropy": the baseline's winner-take-all has no candidate distribution, and a
-        # constant map would read as "certain everywhere".
-        "candidates": np.asarray(candidates, np.float64),
-        "panorama": pano,
-    }
-    result["colour"] = point_colours(rig, images, masks, result["distance"], pano)
+    result = RtssPredictor(args.rtss_preset, candidates, pano).predict(rig, images, masks)
     _report(result, rig, args.out, f"classical baseline {args.rtss_preset}; candidates: {how}")
     return 0
 
@@ -217,7 +201,7 @@ def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
     result = pred.predict(rig, images, masks, candidates, log=print)
     small = pred.info.scaled_rig(rig)
     feed_images = pred.info.feed(rig, images, masks)[0]["images"][0]
-    result["colour"] = point_colours(small, feed_images, None, result["distance"],
-                                     result["panorama"])
+    result = result.replace(colour=point_colours(small, feed_images, None, result.distance,
+                                                 result.panorama))
     _report(result, rig, args.out, f"ONNX model {args.onnx} (onnxruntime)")
     return 0

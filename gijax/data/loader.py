@@ -26,6 +26,7 @@ import numpy as np
 
 from gijax.data.augment import (AugmentConfig, augment_masks, augment_sample, augmentation_key,
                                 augmentation_rng)
+from gijax.evaluate.labels import usable_label
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig, is_homogeneous
 from gijax.sweep.surrogate import (resample_surrogates, surrogate_image, surrogate_images,
@@ -56,11 +57,6 @@ def shard_order(order: np.ndarray, process_index: int, process_count: int) -> np
 # One compiled resampling per image size; the grids depend only on the rig, so the loader
 # computes them once instead of per sample (about 3x faster at the paper's size).
 _resample = jax.jit(resample_surrogates)
-
-
-def label_valid(distance: np.ndarray) -> np.ndarray:
-    """A panorama label is usable where it is finite and positive (sky, 1e6 m, included)."""
-    return np.isfinite(distance) & (distance > 0)
 
 
 class Loader:
@@ -216,7 +212,7 @@ class Loader:
         distance = np.asarray(sample["pano_distance"], np.float32)
         return {"images": np.asarray(sur, np.float32),
                 "masks": np.asarray(smask, np.float32),
-                "distance": distance, "valid": label_valid(distance), "index": int(index)}
+                "distance": distance, "valid": usable_label(distance), "index": int(index)}
 
     def _augment_pixels(self, images, masks, index: int, epoch: int):
         key = augmentation_key(self.seed, epoch, index)

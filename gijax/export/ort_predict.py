@@ -1,7 +1,9 @@
 """Run an exported gijax ONNX file with onnxruntime (CPU, or CUDA where it is available).
 
-:class:`OnnxPredictor` mirrors :func:`gijax.predict.predict`: raw fisheye images of one sample
-in, numpy panoramas out, so ``gijax predict --backend onnx`` can use it in place of the JAX model.
+:class:`OnnxPredictor` is a :class:`gijax.evaluate.prediction.Predictor` like
+:class:`gijax.predict.LearnedPredictor`: raw fisheye images of one sample in, a
+:class:`~gijax.evaluate.prediction.Prediction` of numpy panoramas out, so ``gijax predict
+--backend onnx`` can use it in place of the JAX model.
 The file's metadata (written by :func:`gijax.export.onnx_export.export_onnx`) tells the image
 size, camera count, mode and default candidates.
 """
@@ -14,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gijax.evaluate.prediction import Prediction
 from gijax.export.graph import intrinsics_layout, rig_arrays
 from gijax.export.ort_session import (MEMORY_PROFILES, available_providers,  # noqa: F401
                                       default_providers, make_session)
@@ -132,7 +135,7 @@ class ExportInfo:
 
 
 class OnnxPredictor:
-    """An exported model: ``predict(rig, images, masks=None, candidates=None) -> dict``.
+    """An exported model: ``predict(rig, images, masks=None, candidates=None) -> Prediction``.
 
     Args:
       path: the ``.onnx`` file.
@@ -158,21 +161,19 @@ class OnnxPredictor:
     def candidates(self) -> np.ndarray:
         return self.info.candidates
 
-    def predict(self, rig, images, masks=None, candidates=None, log=None) -> dict:
+    def predict(self, rig, images, masks=None, candidates=None, log=None) -> Prediction:
         """One sample (see :meth:`ExportInfo.feed` for the arguments).
 
-        Returns numpy ``inv_distance`` (H, W) 1/m, ``distance`` (H, W) m, ``entropy`` (H, W)
-        nats, ``valid`` (H, W) bool, ``candidates`` (D,) metres and ``panorama`` (the exported
-        :class:`~gijax.geometry.panorama.Panorama`, oriented by
+        Returns a :class:`Prediction` of numpy ``inv_distance`` (H, W) 1/m, ``distance``
+        (H, W) m, ``entropy`` (H, W) nats, ``valid`` (H, W) bool, ``candidates`` (D,) metres
+        and ``panorama`` (the exported :class:`~gijax.geometry.panorama.Panorama`, oriented by
         ``self.info.panorama_rotation``).
         """
         feed, cand = self.info.feed(rig, images, masks, candidates, self.batch, log)
         got = self.run_batch(feed)
         out = {k: np.asarray(got[k][0]) for k in OUTPUTS}
         out["valid"] = out["valid"] > 0.5
-        out["candidates"] = cand
-        out["panorama"] = self.info.panorama
-        return out
+        return Prediction(**out, candidates=cand, panorama=self.info.panorama)
 
     def run_batch(self, feed: dict) -> dict:
         """Raw session call: ``feed`` maps input names to arrays; returns all outputs."""

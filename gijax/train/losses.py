@@ -8,7 +8,7 @@ metres (sky / no hit stored as a huge distance, 1e6 m); ``valid`` (B, H, W) bool
 Labels are clamped to the candidate range in inverse distance (a label farther than the last
 candidate counts as the last candidate, one nearer than the first as the first), because the
 network can only express inverse distances between those of its candidates. A pixel counts
-when ``valid`` is set and its label is a finite positive number.
+when ``valid`` is set and its label is usable (:func:`gijax.evaluate.labels.usable_label`).
 
 Computation is in float32, or float64 when the inputs are (:func:`gijax.numerics.float_dtype`).
 Every function is traceable (jit, vmap, grad in the predictions and the candidates; a loss
@@ -20,6 +20,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from gijax.evaluate.labels import clamped_inverse, label_mask
 from gijax.numerics import float_dtype
 
 Array = jax.Array
@@ -31,25 +32,6 @@ RELEASE_INV_SCALE = 96.0
 # Smallest probability fed to a logarithm: keeps log(0) finite (log(1e-30) = -69) with a zero
 # gradient through the clamp, and is representable in float32 and bfloat16 alike.
 _PROB_FLOOR = 1e-30
-
-
-def label_mask(distance: Array, valid: Array) -> Array:
-    """(B, H, W) float32: 1 where the label is usable (valid, finite and positive)."""
-    ok = (valid.astype(bool) if valid.dtype != bool else valid) & jnp.isfinite(distance) & (distance > 0)
-    return ok.astype(jnp.float32)
-
-
-def clamped_inverse(distance: Array, candidates: Array) -> Array:
-    """Inverse label distance (1/m), clamped to [1/candidates[-1], 1/candidates[0]].
-
-    Unusable labels (non-finite or non-positive) map to the far end so the result stays finite;
-    callers mask them out with :func:`label_mask`.
-    """
-    dt = float_dtype(distance, candidates)
-    cand = jnp.asarray(candidates, dt)
-    lo, hi = 1.0 / cand[-1], 1.0 / cand[0]
-    d = jnp.where(jnp.isfinite(distance) & (distance > 0), distance, cand[-1]).astype(dt)
-    return jnp.clip(1.0 / d, lo, hi)
 
 
 def two_hot_target(distance: Array, candidates: Array) -> Array:

@@ -23,14 +23,17 @@ import numpy as np
 import optax
 
 from gijax.candidates.parametrisation import logits_from_candidates
+from gijax.evaluate.labels import usable_label
+from gijax.evaluate.loop import evaluate_predictions
+from gijax.evaluate.prediction import Prediction
 from gijax.geometry.rig import Rig
+from gijax.model import model_rig
 from gijax.io.lock import FolderLock
 from gijax.train import step as S
 from gijax.io.paths import write_png_atomic, write_text_atomic
 from gijax.store.configs import CONFIG_FILE, model_config_to_dict
 from gijax.store.checkpoints import CheckpointStore
 from gijax.train.config import TrainConfig, load_run_config, save_run_config
-from gijax.train.metrics import batch_sums, summarize
 from gijax.train.sources import RIG_KEY
 
 METRICS_FILE = "metrics.jsonl"
@@ -78,12 +81,6 @@ def training_candidates(config: TrainConfig, rig: Optional[Rig]) -> np.ndarray:
     from gijax.candidates.validation import check_candidates
 
     return check_candidates(cand)
-
-
-def model_rig(rig: Rig) -> Rig:
-    """The rig as the network needs it: its static masks are not used inside the model (per
-    sample masks are an input), so they are dropped to keep them out of every step's arguments."""
-    return rig.replace(masks=tuple(None for _ in rig.masks))
 
 
 class Trainer:
@@ -360,22 +357,18 @@ class Trainer:
         if self.make_val_batches is None:
             return None
         params, rest = self.local_variables()
-        parts, samples = [], []
-        for batch in self.make_val_batches():
-            out = self.predict_batch(batch, params, rest)
-            sums = batch_sums(out["inv_distance"], jnp.asarray(batch["distance"]),
-                              jnp.asarray(batch["valid"]), self._cand)
-            parts.append(jax.tree.map(np.asarray, sums))
-            if len(samples) < self.config.sample_images:
-                inv = np.asarray(out["inv_distance"])
-                for i in range(min(len(inv), self.config.sample_images - len(samples))):
-                    samples.append((inv[i], np.asarray(batch["distance"][i])))
-        if not parts:
-            raise ValueError("the validation data yielded no batches")
-        metrics = summarize({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
+
+        def predict(batch):
+            inv = self.predict_batch(batch, params, rest)["inv_distance"]
+            # The network gives an estimate at every pixel.
+            return Prediction(inv_distance=inv, valid=jnp.ones(inv.shape, bool))
+
+        result = evaluate_predictions(self.make_val_batches(), predict, self._cand,
+                                      metric_sets=("gijax",), keep=self.config.sample_images,
+                                      name="the validation data")
         if self.is_main:
-            self._write_samples(step, samples)
-        return metrics
+            self._write_samples(step, [(p.inv_distance, d) for p, d in result.examples])
+        return result.metrics["gijax"]
 
     def _write_samples(self, step: int, samples) -> None:
         from gijax.viz.colormap import colorize
@@ -384,7 +377,7 @@ class Trainer:
         folder = self.run_dir / "samples"
         folder.mkdir(exist_ok=True)
         for i, (inv, dist) in enumerate(samples):
-            gt = 1.0 / np.where(np.isfinite(dist) & (dist > 0), dist, np.inf)
+            gt = 1.0 / np.where(usable_label(dist), dist, np.inf)
             gap = np.full((4, inv.shape[1], 3), 255, np.uint8)
             rgb = np.concatenate([colorize(inv, lo, hi), gap, colorize(gt, lo, hi)], axis=0)
             write_png_atomic(folder / f"step{step:07d}_sample{i}.png", rgb)

@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 
+from gijax.evaluate.labels import usable_label
 from gijax.geometry.panorama import Panorama, ray_grid
 from gijax.io.paths import write_bytes_atomic
 
@@ -32,7 +33,7 @@ def panorama_points(distance: np.ndarray, reference, pano: Panorama | None = Non
     rays = np.asarray(ray_grid(pano), np.float64)
     if rotation is not None:
         rays = rays @ np.asarray(rotation, np.float64).T
-    keep = np.isfinite(distance) & (distance > 0) & (distance <= max_distance)
+    keep = usable_label(distance) & (distance <= max_distance)
     if valid is not None:
         keep &= np.asarray(valid, bool)
     pts = np.asarray(reference, np.float64) + distance[..., None] * rays

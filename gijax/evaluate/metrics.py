@@ -70,7 +70,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from gijax.numerics import float_dtype, sqrt_or_zero
-from gijax.train.losses import clamped_inverse, label_mask
+from gijax.evaluate.labels import clamped_inverse, label_mask
 
 Array = jax.Array
 
