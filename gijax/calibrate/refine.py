@@ -60,6 +60,7 @@ import numpy as np
 import optax
 
 from gijax.data.photometric import gaussian_blur
+from gijax.evaluate.labels import usable_label
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import choose_panorama, panorama_of, panorama_rays, \
@@ -364,7 +365,7 @@ def initial_inverse_distance(rig: Rig, images: np.ndarray, masks: np.ndarray,
     out = rtss_predict(rig, jnp.asarray(images, jnp.float32), jnp.asarray(masks, jnp.float32),
                        preset_candidates(rig, config), pano, config)
     inv = np.asarray(out["inv_distance"], np.float64)
-    ok = np.asarray(out["valid"]) & np.isfinite(inv) & (inv > 0)
+    ok = np.asarray(out["valid"]) & usable_label(inv)
     fill = float(np.median(inv[ok])) if ok.any() else 1.0 / 5.0
     return np.where(ok, inv, fill)
 
