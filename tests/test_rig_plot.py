@@ -123,3 +123,4 @@ def test_plot_rig_writes_one_png_and_no_temporary(tmp_path):
     out = plot_rig(_outward_ring(), tmp_path / "sub" / "rig.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in out.parent.iterdir()) == ["rig.png"]
+

@@ -39,43 +39,61 @@ def colorize(values: np.ndarray, vmin: float, vmax: float, cmap: str = "turbo",
     return (rgb * 255.0 + 0.5).astype(np.uint8)
 
 
+def panorama_figure(values: np.ndarray, label: str, vmin: float, vmax: float,
+                    cmap: str = "turbo", title: str = "", valid: np.ndarray | None = None,
+                    ticks: dict | None = None, dpi: int = 100):
+    """The figure of :func:`save_panorama_png`, left open: the panorama at its own aspect
+    (W : H, 2 : 1 for the full sphere), its title above and a labelled colour bar below."""
+    rgb = colorize(values, vmin, vmax, cmap, valid)
+    h, w = rgb.shape[:2]
+    width_in = max(6.0, w / dpi)
+    lines = textwrap.wrap(title, 90) if title else []
+    # Heights in inches: the image keeps the panorama's aspect across 94 % of the width; the
+    # title and the colour bar (bar, ticks, label) get fixed room.
+    image_h = 0.94 * width_in * h / w
+    title_h = 0.15 + 0.18 * len(lines)
+    bar_h = 0.95
+    fig_h = bar_h + image_h + title_h
+    fig = plt.figure(figsize=(width_in, fig_h))
+    ax = fig.add_axes([0.03, bar_h / fig_h, 0.94, image_h / fig_h])
+    ax.imshow(rgb, interpolation="nearest", aspect="auto")
+    ax.set_axis_off()
+    if lines:
+        ax.set_title("\n".join(lines), fontsize=9)
+    cax = fig.add_axes([0.1, 0.5 / fig_h, 0.8, 0.16 / fig_h])
+    mappable = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.Normalize(vmin, vmax),
+                                            cmap=cmap)
+    bar = fig.colorbar(mappable, cax=cax, orientation="horizontal")
+    bar.set_label(label)
+    if ticks:
+        kept: dict = {}
+        span = vmax - vmin
+
+        # The ends of the bar first, then the rest from the top down.
+        def priority(p):
+            return (min(abs(p - vmin), abs(p - vmax)) > 1e-9 * span, -p)
+
+        for pos in sorted(ticks, key=priority):
+            if all(abs(pos - k) >= 0.06 * span for k in kept):
+                kept[pos] = ticks[pos]
+        order = sorted(kept)
+        bar.set_ticks(order)
+        bar.set_ticklabels([kept[k] for k in order])
+    return fig
+
+
 def save_panorama_png(path: str, values: np.ndarray, label: str, vmin: float, vmax: float,
                       cmap: str = "turbo", title: str = "", valid: np.ndarray | None = None,
                       ticks: dict | None = None, dpi: int = 100) -> str:
-    """Write an (H, W) panorama as a colour-mapped PNG with a labelled colour bar.
+    """Write an (H, W) panorama as a colour-mapped PNG at the panorama's own aspect with a
+    labelled colour bar (:func:`panorama_figure`).
 
     ``ticks`` optionally maps colour-bar positions (in ``values`` units) to tick labels, e.g.
     inverse distances labelled in metres; ticks closer than 6 % of the bar to a kept one are
     dropped. Pixels where ``valid`` is False are darkened. Returns ``path``.
     """
-    rgb = colorize(values, vmin, vmax, cmap, valid)
-    h, w = rgb.shape[:2]
-    width_in = max(6.0, w / dpi)
-    fig = plt.figure(figsize=(width_in, width_in * h / w + 1.4))
+    fig = panorama_figure(values, label, vmin, vmax, cmap, title, valid, ticks, dpi)
     try:
-        ax = fig.add_axes([0.03, 0.38, 0.94, 0.5])
-        ax.imshow(rgb, interpolation="nearest", aspect="auto")
-        ax.set_axis_off()
-        if title:
-            ax.set_title("\n".join(textwrap.wrap(title, 90)), fontsize=9)
-        cax = fig.add_axes([0.1, 0.16, 0.8, 0.07])
-        mappable = matplotlib.cm.ScalarMappable(
-            norm=matplotlib.colors.Normalize(vmin, vmax), cmap=cmap)
-        bar = fig.colorbar(mappable, cax=cax, orientation="horizontal")
-        bar.set_label(label)
-        if ticks:
-            kept: dict = {}
-            span = vmax - vmin
-            # The ends of the bar first, then the rest from the top down.
-            def priority(p):
-                return (min(abs(p - vmin), abs(p - vmax)) > 1e-9 * span, -p)
-
-            for pos in sorted(ticks, key=priority):
-                if all(abs(pos - k) >= 0.06 * span for k in kept):
-                    kept[pos] = ticks[pos]
-            order = sorted(kept)
-            bar.set_ticks(order)
-            bar.set_ticklabels([kept[k] for k in order])
         save_figure_atomic(fig, path, dpi=dpi, format="png")
     finally:
         plt.close(fig)
