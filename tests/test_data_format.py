@@ -437,3 +437,39 @@ def test_resume_refuses_other_settings(rig, dataset, tmp_path):
     (stray / "notes.txt").write_text("x")
     with pytest.raises(ValueError, match="not empty and has no manifest.json"):
         DatasetWriter(stray, rig, PANO)
+
+
+def _version_1_without_rig_file(root: Path, rig) -> None:
+    _as_version_1(root, rig)
+    (root / "rig" / "rig.yaml").unlink()
+    manifest = json.loads((root / "manifest.json").read_text())
+    del manifest["rig"]
+    (root / "manifest.json").write_text(json.dumps(manifest))
+
+
+@pytest.mark.parametrize("doc, field, edit, expected", [
+    ("metadata.json", "intrinsics.fx", lambda d: d["cameras"][1]["intrinsics"].update(fx=float("nan")),
+     "one finite number"),
+    ("metadata.json", "intrinsics.fy", lambda d: d["cameras"][1]["intrinsics"].update(fy=-3.0),
+     "a positive focal length"),
+    ("metadata.json", "resolution", lambda d: d["cameras"][1].update(width=10**6, height=10**6),
+     "32768-pixel bound"),
+    ("frame_graph.json", "rotation",
+     lambda d: d["frames"]["cam1"].update(rotation=[[1, 0, 0], [0, 1, 0], [0, 0, 2]]),
+     "a proper orthonormal 3x3 rotation"),
+    ("frame_graph.json", "translation",
+     lambda d: d["frames"]["cam1"].update(translation=[0.1, float("inf"), 0.0]),
+     "finite numbers"),
+])
+def test_a_dataset_calibration_is_checked_like_a_rig_file(rig, dataset, tmp_path, doc, field,
+                                                          edit, expected):
+    root = _copy(dataset, tmp_path)
+    _version_1_without_rig_file(root, rig)
+    body = json.loads((root / doc).read_text())
+    edit(body)
+    (root / doc).write_text(json.dumps(body))
+    with pytest.raises(ValueError) as exc:
+        DatasetReader(root)
+    msg = str(exc.value)
+    assert "\n" not in msg and str(root / doc) in msg and "'cam1'" in msg
+    assert f"field {field!r}" in msg and expected in msg

@@ -197,3 +197,25 @@ def test_a_warning_on_the_command_line_is_one_line_without_its_source(tmp_path, 
     assert err[0].startswith(f"gijax rig: warning: {calib}: cameras cam0, cam1, cam2, cam3 "
                              "have no mask")
     assert "masks.py" not in err[0] and "UnmaskedRigWarning" not in err[0]
+
+
+def test_a_camera_beyond_the_size_bounds_is_refused_before_anything_is_allocated(tmp_path,
+                                                                                  monkeypatch):
+    import yaml
+
+    from gijax.io import bounds
+    from gijax.io.rigfile import save_rig
+
+    path = save_rig(load_rig("paper-train"), tmp_path / "rig.yaml")
+    doc = yaml.safe_load(path.read_text())
+    camera = doc["cameras"][0]
+    camera["resolution"] = [10**6, 10**6]
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ValueError, match=r"field 'resolution'.*32768-pixel bound"):
+        load_rig(path)
+    # A size within the side bound but beyond memory: half of what is available decides.
+    camera["resolution"] = [4096, 4096]
+    path.write_text(yaml.safe_dump(doc))
+    monkeypatch.setattr(bounds, "available_memory", lambda: 64 * 2**20)
+    with pytest.raises(ValueError, match=r"needs about 0\.2 GiB, more than half of the 0\.1 GiB"):
+        load_rig(path)

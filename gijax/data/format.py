@@ -114,6 +114,12 @@ def dumps(doc: dict) -> bytes:
 # ---------------------------------------------------------------------------- rig <-> JSON
 
 def camera_from_json(doc: dict, path) -> Any:
+    """A camera of a format-version-1 ``metadata.json``, checked as every calibration is
+    (:mod:`gijax.io.parsing`: finite intrinsics, positive focal lengths, a bounded positive
+    image size, a field of view in (0, 360] degrees)."""
+    from gijax.io.parsing import Where, checked_camera, floats, resolution
+
+    where = Where(Path(str(path)), doc.get("name") if isinstance(doc, dict) else None)
     model = require(doc, "model", path, str)
     if model not in cam_lib.CAMERA_MODELS:
         raise ValueError(f"{path}: camera {doc.get('name')!r} has unknown model {model!r}; "
@@ -123,12 +129,14 @@ def camera_from_json(doc: dict, path) -> Any:
     missing = [k for k in cls.PARAMS if k not in intr]
     if missing:
         raise ValueError(f"{path}: camera {doc.get('name')!r} is missing intrinsics {missing}")
-    fov = doc["fov_rad"] if "fov_rad" in doc else math.radians(require(doc, "fov_deg", path,
-                                                                         (int, float)))
-    leaves = {k: jnp.asarray(intr[k], jnp.float32) for k in cls.PARAMS}
-    return cls(**leaves, fov=jnp.asarray(fov, jnp.float32),
-               width=int(require(doc, "width", path, int)),
-               height=int(require(doc, "height", path, int)))
+    params = {k: float(floats(intr[k], 1, f"intrinsics.{k}", where, "one finite number")[0])
+              for k in cls.PARAMS}
+    fov_deg = (math.degrees(float(floats(doc["fov_rad"], 1, "fov_rad", where,
+                                         "one number of radians")[0]))
+               if "fov_rad" in doc else require(doc, "fov_deg", path, (int, float)))
+    size = resolution([require(doc, "width", path, int), require(doc, "height", path, int)],
+                      where)
+    return checked_camera(model, params, size, fov_deg, where)
 
 
 def metadata_doc(pano: Panorama, distance_range=DEFAULT_DISTANCE_RANGE,
@@ -160,6 +168,7 @@ def check_names(names) -> None:
 def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
     """The rig of a format-version-1 dataset, from its metadata.json, frame_graph.json and the
     rig mask PNGs."""
+    from gijax.io.parsing import Where, check_rotation, floats
     meta_path, graph_path = root / METADATA, root / FRAME_GRAPH
     cam_docs = require(meta, "cameras", meta_path, list)
     if not cam_docs:
@@ -173,13 +182,13 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
         if name not in frames:
             raise ValueError(f"{graph_path}: no frame for camera {name!r}")
         pose = frames[name]
-        rot = np.asarray(require(pose, "rotation", f"{graph_path} frame {name!r}", list),
-                         np.float32)
-        t = np.asarray(require(pose, "translation", f"{graph_path} frame {name!r}", list),
-                       np.float32)
-        if rot.shape != (3, 3) or t.shape != (3,):
-            raise ValueError(f"{graph_path} frame {name!r}: rotation must be 3x3 and "
-                             f"translation 3; found {rot.shape} and {t.shape}")
+        # The pose is checked as a rig file's is: finite, and a proper rotation.
+        at = Where(graph_path, name)
+        rot = check_rotation(floats(require(pose, "rotation", f"{graph_path} frame {name!r}",
+                                            list), 9, "rotation", at,
+                                    "a 3x3 rotation matrix").reshape(3, 3), "rotation", at)
+        t = floats(require(pose, "translation", f"{graph_path} frame {name!r}", list), 3,
+                   "translation", at, "3 finite numbers in metres")
         mask_file = doc.get("mask")
         mask = None
         if mask_file:

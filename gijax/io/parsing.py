@@ -14,6 +14,7 @@ from typing import Any, Optional
 import numpy as np
 
 from gijax.geometry.cameras import make_camera
+from gijax.io.bounds import CAMERA_BYTES_PER_PIXEL, check_size
 from gijax.geometry.rig import Rig, make_rig
 
 # Tolerance on |R^T R - I| and on | |q| - 1 |.
@@ -93,6 +94,11 @@ def resolution(value, where: Where) -> tuple[int, int]:
     res = floats(value, 2, "resolution", where, "[width, height], two positive integers")
     if np.any(res < 1) or np.any(res != np.round(res)):
         raise where.error("resolution", "[width, height], two positive integers", value)
+    try:
+        check_size("image size", int(res[0]), int(res[1]), CAMERA_BYTES_PER_PIXEL)
+    except ValueError as exc:
+        raise where.error("resolution", "an image size within the bounds of gijax.io.bounds",
+                          f"{value} ({exc})") from None
     return int(res[0]), int(res[1])
 
 
