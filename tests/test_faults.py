@@ -147,3 +147,30 @@ def test_training_fault_probe_more_seeds(script, reference_run, tmp_path, seed):
 def test_render_fault_probe_more_seeds(render_reference, tmp_path, seed):
     rig_file, ref = render_reference
     render_probe(rig_file, ref, tmp_path / "out", seed)
+
+
+def test_ctrl_c_during_rendering_ends_in_one_line_and_the_same_command_continues(
+        render_reference, tmp_path):
+    rig_file, ref = render_reference
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "gijax", "render", "--rig", str(rig_file), "--samples",
+           str(SAMPLES), "--out", str(out), "--seed", "3", "--pano", "32x8"]
+    csv = out / "traj_0000" / "files.csv"
+    proc = subprocess.Popen(cmd, env=child_env(CACHE, optimised=True),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None and not (
+            csv.exists() and len(csv.read_text().splitlines()) > 3):
+        time.sleep(0.01)
+    assert proc.poll() is None, "render ended before Ctrl-C"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-3000:]
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert "Traceback" not in err
+    assert lines[-1] == (f"gijax render: interrupted; {out} keeps the samples written so far; "
+                         f"the same command continues from them")
+    r = subprocess.run(cmd, env=child_env(CACHE, optimised=True), capture_output=True,
+                       text=True, timeout=240)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert _tree(out) == _tree(ref)                # nothing lost, nothing mixed

@@ -58,6 +58,13 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.showwarning = _warning_printer(args.command)
             return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        # Ctrl-C: one line saying what was kept (a command that keeps something says what in
+        # args.interrupted_keeps), not Python's traceback.
+        kept = getattr(args, "interrupted_keeps", None)
+        print(f"gijax {args.command}: interrupted" + (f"; {kept}" if kept else ""),
+              file=sys.stderr)
+        return 130
     except (ValueError, FileNotFoundError, FolderLockedError) as exc:
         print(f"gijax {args.command}: error: {exc}", file=sys.stderr)
         return 1

@@ -56,6 +56,8 @@ def run(args) -> int:
         fovs = ", ".join(f"{math.degrees(float(c.fov)):.0f}" for c in base.cameras)
         print(f"lenses drawn (seed {args.lens_seed}): {model}, fields of view {fovs} deg")
     h, w = pano.shape
+    args.interrupted_keeps = (f"{args.out} keeps the samples written so far; the same "
+                              f"command continues from them")
     rig = render_dataset(base, args.out, args.samples, seed=args.seed,
                          image_scale=_scale_for(base, args), pano=pano, style=args.style,
                          trajectory_size=args.trajectory_size, durable=args.durable, log=print)

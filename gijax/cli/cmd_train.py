@@ -103,6 +103,8 @@ def run(args) -> int:
     check_output_dir(args.out)
     if args.pack:
         check_output_dir(args.pack, "--pack")
+    args.interrupted_keeps = (f"{args.out} keeps the checkpoints written so far (every "
+                              f"--ckpt-every steps); the same command resumes from the last")
     init_distributed(args.coordinator, args.num_processes, args.process_id)
     from gijax.candidates.spec import read_candidate_file
     from gijax.train.config import TrainConfig
