@@ -137,8 +137,8 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
             bar.update(1)
             for label, cand in cands.items():
                 bar.set_postfix_str(f"{name} scene {j + 1}/{scenes}: {config.name} ({label})")
-                inv, secs, metrics, res = _evaluate(LearnedPredictor(net, cand, pano), small,
-                                                    sample, cand)
+                learned = LearnedPredictor(net, cand, pano, colours=False)
+                inv, secs, metrics, res = _evaluate(learned, small, sample, cand)
                 per_scene.setdefault(f"{config.name} {label}", []).append(
                     MethodResult(f"{config.name} {label}", inv, secs, metrics))
                 if cloud is None:

@@ -99,6 +99,46 @@ def point_colours(rig: Rig, images, masks, distance, pano: Panorama | None = Non
     return np.asarray(_point_colours(rig, as_float_image(images), jnp.asarray(distance), pano))
 
 
+# The colour panorama is sampled at most this many times finer than the distance map.
+MAX_COLOUR_FACTOR = 8
+
+
+def colour_factor(rig: Rig, pano: Panorama) -> int:
+    """How many times finer than ``pano`` the cameras resolve the scene: the smallest focal
+    length (pixels per radian at the optical axis) over the panorama's pixels per radian of
+    latitude, rounded, in 1 .. :data:`MAX_COLOUR_FACTOR`."""
+    focal = min(min(float(c.fx), float(c.fy)) for c in rig.cameras)
+    per_radian = pano.height / (pano.lat_max - pano.lat_min)
+    return int(np.clip(round(focal / per_radian), 1, MAX_COLOUR_FACTOR))
+
+
+def colour_panorama(rig: Rig, images, masks, distance, valid, pano: Panorama
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The colour panorama at the resolution the cameras support: ``(rgb (kH, kW, 3) in
+    [0, 1], valid (kH, kW))`` with k = :func:`colour_factor`. The distance map is upsampled
+    (bilinear in inverse distance, validity by nearest neighbour) and every finer point is
+    coloured from the images as :func:`point_colours` does; k = 1 is ``point_colours`` itself.
+
+    ``rig`` and ``images`` at the cameras' own size (not the network's), so a model run on
+    downscaled images still shows what the cameras saw."""
+    import cv2
+
+    k = colour_factor(rig, pano)
+    distance = np.asarray(distance, np.float32)
+    valid = np.asarray(valid, bool) & usable_label(distance)
+    if k == 1:
+        return point_colours(rig, images, masks, distance, pano), valid
+    fine = Panorama(pano.height * k, pano.width * k, pano.lat_min, pano.lat_max)
+    inv = np.where(valid, 1.0 / np.where(valid, distance, 1.0), 0.0).astype(np.float32)
+    fill = float(np.median(inv[valid])) if valid.any() else 1.0
+    inv = np.where(valid, inv, fill).astype(np.float32)
+    inv_fine = cv2.resize(inv, (fine.width, fine.height), interpolation=cv2.INTER_LINEAR)
+    valid_fine = cv2.resize(valid.astype(np.uint8), (fine.width, fine.height),
+                            interpolation=cv2.INTER_NEAREST).astype(bool)
+    dist_fine = 1.0 / np.maximum(inv_fine, 1e-6)
+    return point_colours(rig, images, masks, dist_fine, fine), valid_fine
+
+
 def model_size(config: ModelConfig, rig: Rig) -> tuple[int, int]:
     """(height, width) of the images the learned model runs on: the rig's size times the
     configuration's ``image_scale``, rounded as :func:`gijax.geometry.rig.scale_rig` rounds."""
@@ -108,7 +148,7 @@ def model_size(config: ModelConfig, rig: Rig) -> tuple[int, int]:
 
 
 def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
-            pano: Panorama | None = None) -> Prediction:
+            pano: Panorama | None = None, colours: bool = True) -> Prediction:
     """Distance panorama of one sample.
 
     Args:
@@ -123,6 +163,8 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
         covers another part of the sphere than the model was trained on.
       pano: the output panorama (static), oriented by the rig's panorama frame; default the
         model's own (:func:`gijax.model.model_panorama`).
+      colours: also make ``rgb`` / ``rgb_valid``, the colour panorama at the resolution the
+        cameras support (:func:`colour_panorama`, from the images at the rig's own size).
 
     Returns:
       a :class:`Prediction` of numpy arrays: ``inv_distance`` (H, W) 1/m, ``distance`` (H, W)
@@ -153,6 +195,7 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
         if masks.shape != images.shape[:3]:
             raise ValueError(f"masks must have shape {images.shape[:3]} to match the images; "
                              f"found {masks.shape}")
+    full_rig, full_images, full_masks = fit_images(rig, images, masks, None, None)
     run_rig, images, masks = fit_images(rig, images, masks, model_size(config, rig), log)
     check_images(run_rig, images, masks)
     images = as_float_image(images)
@@ -167,8 +210,11 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
                    pano)
     maps = {k: np.asarray(out[k][0]) for k in ("inv_distance", "distance", "prob", "entropy",
                                                 "valid")}
+    rgb, rgb_valid = (colour_panorama(full_rig, full_images, full_masks, maps["distance"],
+                                      maps["valid"], pano) if colours else (None, None))
     return Prediction(**maps,
                       colour=point_colours(run_rig, images, masks, out["distance"][0], pano),
+                      rgb=rgb, rgb_valid=rgb_valid,
                       candidates=np.asarray(candidates, np.float64), panorama=pano)
 
 
@@ -176,13 +222,16 @@ class LearnedPredictor:
     """A learned model with its candidates and output panorama, as a :class:`Predictor`
     (:func:`predict` for each sample)."""
 
-    def __init__(self, model: OmniStereoNet, candidates, pano: Panorama | None = None):
+    def __init__(self, model: OmniStereoNet, candidates, pano: Panorama | None = None,
+                 colours: bool = True):
         self.model = model
         self.candidates = np.asarray(candidates, np.float64)
         self.pano = pano
+        self.colours = colours
 
     def predict(self, rig: Rig, images, masks=None, log=None) -> Prediction:
-        return predict(self.model, rig, images, masks, self.candidates, log=log, pano=self.pano)
+        return predict(self.model, rig, images, masks, self.candidates, log=log, pano=self.pano,
+                       colours=self.colours)
 
 
 class RtssPredictor:
@@ -351,7 +400,14 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
             str(out / "uncertainty.png"), result["entropy"], "entropy of the candidate "
             "distribution (nats)", 0.0, math.log(len(cand)), cmap="magma",
             title=(title + " - uncertainty").strip(" -"), valid=valid)
-    rgb = np.where(valid[..., None], np.asarray(result["colour"], np.float32), 0.0)
+    # The colour panorama at the cameras' resolution where the method made one (a learned
+    # model's distance map is coarser than its images), else its colour per predicted point.
+    if "rgb" in result:
+        colour, colour_valid = np.asarray(result["rgb"], np.float32), np.asarray(
+            result["rgb_valid"], bool)
+    else:
+        colour, colour_valid = np.asarray(result["colour"], np.float32), valid
+    rgb = np.where(colour_valid[..., None], colour, 0.0)
     rgb = np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
     paths["rgb_png"] = str(out / "rgb.png")
     write_bytes_atomic(Path(paths["rgb_png"]),

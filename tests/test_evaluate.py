@@ -126,7 +126,7 @@ def test_learned_and_rtss_through_the_same_loop_on_a_rendered_sample():
         assert 0 < result.metrics["paper"]["mae"] < 2.0, name
     # One result type; the learned model's candidate distribution is in its result, the
     # baseline (winner-take-all) has none.
-    assert {"inv_distance", "distance", "valid", "entropy", "prob", "colour", "candidates",
-            "panorama"} == set(preds["learned"])
+    assert {"inv_distance", "distance", "valid", "entropy", "prob", "colour", "rgb",
+            "rgb_valid", "candidates", "panorama"} == set(preds["learned"])
     assert {"inv_distance", "distance", "valid", "candidates", "panorama"} == set(preds["rtss"])
     assert preds["rtss"].get("entropy") is None

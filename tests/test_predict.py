@@ -82,6 +82,15 @@ def test_full_size_images_are_resized_for_the_model(setup):
     np.testing.assert_allclose(out_big["distance"], out["distance"], rtol=1e-5)
     assert notes == ["note: images 1024 x 1024 resized to 64 x 64 (the rig's 1024 x 1024 "
                      "scaled by 0.0625) for the model"]
+    # The colour panorama is sampled from the images the cameras gave, at the resolution they
+    # support: focal 300 px per radian against 16 rows over 90 degrees (10.2 per radian) is 29
+    # times finer, capped at 8; the 64-px images support round(18.75 / 10.19) = 2.
+    assert out["rgb"].shape == (32, 128, 3) and out["rgb_valid"].shape == (32, 128)
+    assert out_big["rgb"].shape == (128, 512, 3)
+    col = out_big["rgb"][out_big["rgb_valid"]] * 255
+    subsets = [np.mean(RGB[[i for i in range(3) if k >> i & 1]], 0) for k in range(1, 8)]
+    near = np.any([np.all(np.abs(col - c) < 0.5, axis=-1) for c in subsets], axis=0)
+    assert near.mean() > 0.95
     # Another size of the same aspect is resized too (here enlarged).
     out_mid = predict(model, rig, np.broadcast_to(RGB[:, None, None], (3, 48, 48, 3)), None, G8)
     np.testing.assert_allclose(out_mid["distance"], out["distance"], rtol=1e-5)
@@ -124,6 +133,11 @@ def test_written_files(setup, tmp_path):
     np.testing.assert_array_equal(cols, (out["colour"][keep] * 255 + 0.5).astype(np.uint8))
     meta = json.loads((tmp_path / "pred" / "prediction.json").read_text())
     assert meta["points"] == len(pts) and np.allclose(meta["candidates_m"], G8)
+    rgb = cv2.imread(paths["rgb_png"])
+    assert rgb.shape == out["rgb"].shape
+    want_rgb = np.where(out["rgb_valid"][..., None], out["rgb"], 0.0)
+    np.testing.assert_array_equal(rgb[..., ::-1], np.clip(want_rgb * 255 + 0.5, 0, 255).astype(
+        np.uint8))
 
 
 def test_cli(tmp_path, capsys):
@@ -155,10 +169,11 @@ def test_cli(tmp_path, capsys):
     dist = np.load(out / "distance.npy")
     assert dist.shape == (16, 64) and np.nanmin(dist) >= 0.75 - 1e-4
     assert (out / "points.ply").stat().st_size > 100
-    # The colour panorama: flat camera colours average to flat colours where valid.
+    # The colour panorama, at the 2x finer resolution the 64-px cameras support (validity
+    # upsampled by nearest neighbour): flat camera colours average to flat colours where valid.
     rgb = cv2.imread(str(out / "rgb.png"))[..., ::-1]
-    valid = np.load(out / "valid.npy")
-    assert rgb.shape == (16, 64, 3) and np.all(rgb[~valid] == 0) and rgb[valid].max() > 60
+    valid = np.load(out / "valid.npy").repeat(2, axis=0).repeat(2, axis=1)
+    assert rgb.shape == (32, 128, 3) and np.all(rgb[~valid] == 0) and rgb[valid].max() > 60
     assert (out / "uncertainty.png").exists()
     rc = main(["predict", "--preset", str(cfg), "--rig", "paper-train", "--images", *files[:2],
                "--out", str(out)])

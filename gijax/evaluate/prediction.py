@@ -27,7 +27,9 @@ class Prediction(Mapping):
     ``inv_distance`` 1/m and ``valid`` (bool: the method gave an estimate there) always;
     ``distance`` metres; ``entropy`` nats and ``prob`` (D, H, W) of the candidate distribution
     (learned models only); ``colour`` (H, W, 3) in [0, 1], the image colour at each predicted
-    point; ``candidates`` (D,) metres; ``panorama`` the
+    point; ``rgb`` (kH, kW, 3) and ``rgb_valid`` the colour panorama at the resolution the
+    cameras support (k >= 1; None where a method does not make one: ``colour`` serves then);
+    ``candidates`` (D,) metres; ``panorama`` the
     :class:`~gijax.geometry.panorama.Panorama` of the maps. Read by attribute or by key.
     """
 
@@ -37,6 +39,8 @@ class Prediction(Mapping):
     entropy: Any = None
     prob: Any = None
     colour: Any = None
+    rgb: Any = None
+    rgb_valid: Any = None
     candidates: Any = None
     panorama: Any = None
 
