@@ -14,7 +14,7 @@ engine). --rig-as-input makes intrinsics, poses, reference point and candidates 
 a re-calibrated rig (same camera model and image size) needs no new export.
 
 After writing, the file is checked (onnx checker), run with onnxruntime on a rendered sample and
-compared with JAX (inverse distance within 1e-4 1/m), and a TensorRT compatibility report
+compared with JAX (inverse distance within 1e-4 1/m; 1e-2 1/m for --precision fp16), and a TensorRT compatibility report
 (8.5 / 10.x / 11.x) is printed. The exit code is non-zero when a check fails.
 """
 
@@ -42,6 +42,10 @@ def register(subparsers) -> None:
     p.add_argument("--candidates", default="train", metavar=METAVAR,
                    help="candidates baked in / used for validation: " + CANDIDATES_HELP)
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
+    p.add_argument("--precision", choices=("fp32", "fp16"), default="fp32",
+                   help="fp32 (default), or fp16: feature extractor, cost-volume convolution "
+                   "and U-Net in float16, sampling, softmax and regression kept float32 by "
+                   "casts; inputs and outputs stay float32 (docs/deploy.md)")
     p.add_argument("--no-validate", action="store_true",
                    help="skip the onnxruntime-vs-JAX comparison on a rendered sample")
     add_panorama_options(p, "the model's output size")
@@ -53,6 +57,7 @@ def run(args) -> int:
 
     from gijax.candidates.spec import resolve_candidates
     from gijax.export.onnx_export import export_onnx, validate_export
+    from gijax.export.precision import VALIDATE_ATOL
     from gijax.export.trt_compat import check_model
     from gijax.io.paths import check_output_file
     from gijax.io.rigfile import load_rig
@@ -78,7 +83,8 @@ def run(args) -> int:
           f"{np.round(candidates, 3).tolist()} m")
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,
                          dynamic_batch=args.dynamic_batch, rig_as_input=args.rig_as_input,
-                         extra_metadata={"source": label, "rig": str(args.rig)}, pano=pano)
+                         extra_metadata={"source": label, "rig": str(args.rig)}, pano=pano,
+                         precision=args.precision)
     print(f"wrote {result.path} ({result.metadata['mode']})")
     for name, shape in result.inputs.items():
         print(f"  input  {name:13s} {shape}")
@@ -86,7 +92,8 @@ def run(args) -> int:
         print(f"  output {name:13s} {shape}")
     status = 0
     if not args.no_validate:
-        v = validate_export(result.path, model, rig, candidates)
+        v = validate_export(result.path, model, rig, candidates,
+                            atol=VALIDATE_ATOL[args.precision])
         print(f"onnxruntime vs JAX on a rendered sample: max |d inv_distance| = "
               f"{v['max_abs_inv_distance']:.2e} 1/m, max |d entropy| = "
               f"{v['max_abs_entropy']:.2e}, valid mismatches {v['valid_mismatch']}: "

@@ -44,6 +44,7 @@ import numpy as np
 from flax import nnx
 
 from gijax.export.graph import intrinsics_layout, rig_from_arrays
+from gijax.export.precision import PRECISIONS, plan_fp16
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, scale_rig
@@ -144,7 +145,7 @@ def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: boo
 def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathLike, *,
                 opset: int = DEFAULT_OPSET, batch: int = 1, dynamic_batch: bool = False,
                 rig_as_input: bool = False, extra_metadata: dict | None = None,
-                pano: Panorama | None = None) -> ExportResult:
+                pano: Panorama | None = None, precision: str = "fp32") -> ExportResult:
     """Export ``model`` for ``rig`` (at its calibrated size) to the ONNX file ``path``.
 
     Args:
@@ -159,6 +160,9 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
       extra_metadata: more string metadata to store (e.g. the checkpoint path).
       pano: the output panorama (default the model's own, :func:`gijax.model.model_panorama`),
         oriented by ``rig``'s panorama frame (baked into the file).
+      precision: 'fp32', or 'fp16' for the precision plan of :mod:`gijax.export.precision`
+        (float16 feature extractor and U-Net, float32 sampling and regression; the inputs
+        and outputs stay float32).
 
     Returns:
       an :class:`ExportResult`.
@@ -170,6 +174,9 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     if opset not in SUPPORTED_OPSETS:
         raise ValueError(f"opset must be in {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1}"
                          f"; found {opset}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}; found "
+                         f"{precision!r}")
     if not dynamic_batch and (int(batch) != batch or batch < 1):
         raise ValueError(f"batch must be a positive integer; found {batch}")
     check_export_inputs(model, rig, candidates)
@@ -194,6 +201,9 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
         quiet.setLevel(level)
     legalise(proto)
     metadata = export_metadata(cfg, run_rig, candidates, rig_as_input, dynamic_batch, pano)
+    if precision == "fp16":  # an fp32 file stays byte-for-byte what it was
+        metadata["precision"] = precision
+        metadata["fp16_islands"] = json.dumps(plan_fp16(proto)["islands"])
     metadata.update({k: str(v) for k, v in (extra_metadata or {}).items()})
     for key, value in metadata.items():
         entry = proto.metadata_props.add()
