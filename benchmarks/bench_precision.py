@@ -1,8 +1,10 @@
-"""Accuracy of the reduced-precision exports: fp32, the fp16 precision plan and a naive
-all-fp16 conversion of the same graph, run in onnxruntime (CPU) on rendered scenes.
+"""Accuracy of the reduced-precision exports: fp32, the fp16 precision plan, a naive all-fp16
+conversion of the same graph and the int8 export, run in onnxruntime (CPU) on rendered scenes.
 
-The model is exported once (fp32, rig baked in); the plan and the naive conversion are applied
-to copies of that graph (:mod:`gijax.export.precision`). Each file runs the same rendered
+The model is exported fp32 (rig baked in); the plan and the naive conversion are applied to
+copies of that graph (:mod:`gijax.export.precision`); the int8 file is ``export_onnx(...,
+precision='int8')`` calibrated on ``--calibration`` rendered scenes (seeds 1000...), disjoint
+from the evaluated scenes (seeds 2000...). Each file runs the same rendered
 scenes of the paper's training rig; the table gives the MAE in inverse distance (1/m, gijax's
 metric set, against the rendered panorama distance) per file, and the largest and mean
 difference of the inverse distance from the fp32 file.
@@ -31,7 +33,9 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ckpt", default="G16VV-cpu", help="bundled model name or run folder")
     ap.add_argument("--rig", default="paper-train")
-    ap.add_argument("--scenes", type=int, default=4, help="rendered scenes (seeds 1000...)")
+    ap.add_argument("--scenes", type=int, default=4, help="rendered scenes (seeds 2000...)")
+    ap.add_argument("--calibration", type=int, default=4,
+                    help="int8 calibration scenes (seeds 1000...)")
     ap.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     args = ap.parse_args(argv)
 
@@ -60,11 +64,14 @@ def main(argv=None) -> int:
             convert(proto)
             paths[name] = Path(tmp) / f"{name}.onnx"
             onnx.save_model(proto, str(paths[name]))
+        paths["int8"] = Path(tmp) / "int8.onnx"
+        export_onnx(model, rig, cand, paths["int8"], precision="int8",
+                    calibration_scenes=args.calibration)
         sessions = {k: make_session(str(p)) for k, p in paths.items()}
         preds = {k: [] for k in sessions}
         labels = []
         for i in range(args.scenes):
-            s = render_sample(run_rig, 1000 + i, pano=pano)
+            s = render_sample(run_rig, 2000 + i, pano=pano)
             feed = {"images": s["images"][None].astype(np.float32) / 255.0,
                     "masks": s["masks"][None].astype(np.float32)}
             labels.append(s["pano_distance"])
@@ -80,15 +87,16 @@ def main(argv=None) -> int:
         mae = evaluate_batch(inv, distance, valid, cand)["mae"]
         rows[k] = {"mae": float(mae), "max_abs_diff_vs_fp32": float(diff.max()),
                    "mean_abs_diff_vs_fp32": float(diff.mean())}
-    print(f"{args.ckpt} on {args.scenes} rendered scenes of {args.rig} "
-          f"(onnxruntime CPU; inverse distance, 1/m)")
+    print(f"{args.ckpt} on {args.scenes} rendered scenes of {args.rig}, int8 calibrated on "
+          f"{args.calibration} others (onnxruntime CPU; inverse distance, 1/m)")
     print(f"{'file':6s} {'MAE':>10s} {'max |d| vs fp32':>16s} {'mean |d| vs fp32':>17s}")
     for k, r in rows.items():
         print(f"{k:6s} {r['mae']:10.5f} {r['max_abs_diff_vs_fp32']:16.2e} "
               f"{r['mean_abs_diff_vs_fp32']:17.2e}")
     if args.json:
         Path(args.json).write_text(json.dumps({"ckpt": args.ckpt, "rig": args.rig,
-                                               "scenes": args.scenes, "rows": rows}, indent=2))
+                                               "scenes": args.scenes,
+                                               "calibration": args.calibration, "rows": rows}, indent=2))
     return 0
 
 

@@ -52,12 +52,14 @@ def files(tmp_path_factory):
     # What --candidates train gives an untrained preset.
     cand, _ = resolve_candidates("train", rig, TINY.num_candidates, TINY.d_min, TINY.d_max,
                                  kind=TINY.candidates)
-    export_onnx(create_model(TINY, seed=0), rig, cand, d / "fp32.onnx")
+    model = create_model(TINY, seed=0)
+    export_onnx(model, rig, cand, d / "fp32.onnx")
+    export_onnx(model, rig, cand, d / "int8.onnx", precision="int8", calibration_scenes=2)
     naive = onnx.load(str(d / "fp32.onnx"))
     naive_fp16(naive)
     onnx.save_model(naive, str(d / "naive.onnx"))
     images, masks = rendered_inputs(TINY, rig, seed=3)
-    out = {k: _run(d / f"{k}.onnx", images, masks) for k in ("fp32", "fp16", "naive")}
+    out = {k: _run(d / f"{k}.onnx", images, masks) for k in ("fp32", "fp16", "naive", "int8")}
     return dict(dir=d, out=out, cand=cand)
 
 
@@ -125,6 +127,32 @@ def test_tensorrt_report_covers_fp16_and_casts(files):
 
 
 def test_unknown_precision_is_refused_before_export():
-    with pytest.raises(ValueError, match="precision must be one of fp32, fp16; found 'int4'"):
+    with pytest.raises(ValueError, match="precision must be one of fp32, fp16, int8; found 'int4'"):
         export_onnx(create_model(TINY, seed=0), load_rig("paper-train"),
                     np.geomspace(0.5, 100.0, 8), "unused.onnx", precision="int4")
+
+
+def test_int8_quantises_only_the_island_convolutions(files):
+    q = onnx.load(str(files["dir"] / "int8.onnx"))
+    onnx.checker.check_model(q, full_check=True)
+    g = q.graph
+    producer = {o: n for n in g.node for o in n.output}
+    inits = {t.name: t for t in g.initializer}
+    convs = [n for n in g.node if n.op_type == "Conv"]
+    assert convs and all(producer[n.input[0]].op_type == "DequantizeLinear" and
+                         producer[n.input[1]].op_type == "DequantizeLinear" for n in convs)
+    # Weights per output channel: one scale per channel along axis 0.
+    w_dq = producer[convs[0].input[1]]
+    assert inits[w_dq.input[1]].dims == [inits[w_dq.input[0]].dims[0]]
+    assert inits[w_dq.input[0]].data_type == TensorProto.INT8
+    # The float32 islands stay unquantised: the sampling gathers and the softmax read floats.
+    for n in g.node:
+        if n.op_type in ("GatherND", "LogSoftmax", "Softmax"):
+            assert producer.get(n.input[0]) is None or \
+                producer[n.input[0]].op_type != "DequantizeLinear", n.name
+    meta = read_metadata(q)
+    assert meta["precision"] == "int8" and len(json.loads(meta["int8_islands"])) == 2
+    assert check_model(q).ok(), check_model(q).table()
+    d = np.abs(files["out"]["int8"]["inv_distance"] - files["out"]["fp32"]["inv_distance"])
+    assert d.max() <= 5e-2, d.max()  # the stated int8 validation tolerance, 1/m
+    np.testing.assert_array_equal(files["out"]["int8"]["valid"], files["out"]["fp32"]["valid"])

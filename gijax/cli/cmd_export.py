@@ -14,7 +14,8 @@ engine). --rig-as-input makes intrinsics, poses, reference point and candidates 
 a re-calibrated rig (same camera model and image size) needs no new export.
 
 After writing, the file is checked (onnx checker), run with onnxruntime on a rendered sample and
-compared with JAX (inverse distance within 1e-4 1/m; 1e-2 1/m for --precision fp16), and a TensorRT compatibility report
+compared with JAX (inverse distance within 1e-4 1/m; 1e-2 for --precision fp16, 5e-2 for
+int8), and a TensorRT compatibility report
 (8.5 / 10.x / 11.x) is printed. The exit code is non-zero when a check fails.
 """
 
@@ -22,6 +23,7 @@ compared with JAX (inverse distance within 1e-4 1/m; 1e-2 1/m for --precision fp
 def register(subparsers) -> None:
     from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
     from gijax.cli.options import CKPT_HELP, add_panorama_options
+    from gijax.export.precision import DEFAULT_CALIBRATION_SCENES, PRECISIONS
 
     p = subparsers.add_parser("export", help=HELP, description=DESCRIPTION,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -42,10 +44,14 @@ def register(subparsers) -> None:
     p.add_argument("--candidates", default="train", metavar=METAVAR,
                    help="candidates baked in / used for validation: " + CANDIDATES_HELP)
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
-    p.add_argument("--precision", choices=("fp32", "fp16"), default="fp32",
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="fp32 (default), or fp16: feature extractor, cost-volume convolution "
                    "and U-Net in float16, sampling, softmax and regression kept float32 by "
-                   "casts; inputs and outputs stay float32 (docs/deploy.md)")
+                   "casts; int8: those convolutions quantised (QDQ, per-channel weights), the "
+                   "rest float32; inputs and outputs stay float32 (docs/deploy.md)")
+    p.add_argument("--calibration", type=int, default=DEFAULT_CALIBRATION_SCENES,
+                   metavar="SCENES", help="int8: rendered scenes of the rig the activation "
+                   f"ranges are calibrated on (default {DEFAULT_CALIBRATION_SCENES})")
     p.add_argument("--no-validate", action="store_true",
                    help="skip the onnxruntime-vs-JAX comparison on a rendered sample")
     add_panorama_options(p, "the model's output size")
@@ -84,7 +90,7 @@ def run(args) -> int:
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,
                          dynamic_batch=args.dynamic_batch, rig_as_input=args.rig_as_input,
                          extra_metadata={"source": label, "rig": str(args.rig)}, pano=pano,
-                         precision=args.precision)
+                         precision=args.precision, calibration_scenes=args.calibration)
     print(f"wrote {result.path} ({result.metadata['mode']})")
     for name, shape in result.inputs.items():
         print(f"  input  {name:13s} {shape}")

@@ -31,6 +31,9 @@ data types it accepts. Notable rows:
   (jax2onnx does not produce them, and TensorRT restricts their padding and output shape; the
   network uses upsample + conv instead).
 * ``Range``: float start/limit/delta must be constants.
+* ``QuantizeLinear`` (float input) and ``DequantizeLinear`` (int8 input; an int32 bias is
+  rejected): explicit int8 quantisation, from 8.5. A ``Conv`` weight that is a
+  ``DequantizeLinear`` of a constant counts as constant.
 * ``Cast``: to f32, f16, i32, i64, i8, u8 or bool (i64 cast down on 8.5); bf16 from 9.0; f64
   and other targets are rejected.
 * Reductions, Softmax, trigonometry, ``Floor``, ``Sqrt``, ``Pow``...: float only.
@@ -181,6 +184,9 @@ def _rows():
                "ScatterND", "ScatterElements", "DepthToSpace", "SpaceToDepth"):
         rows[op] = OpRule(v85, MOVE)
     rows["Cast"] = OpRule(v85, MOVE | {"u8"}, _cast_check)
+    # Explicit (QDQ) int8 quantisation: float in, int8 out and back.
+    rows["QuantizeLinear"] = OpRule(v85, F)
+    rows["DequantizeLinear"] = OpRule(v85, frozenset({"i8"}))
     rows["Where"] = OpRule(v85, FIB, data_input=1)
     rows["IsNaN"] = OpRule(v85, FI)
     rows["IsInf"] = OpRule((10, 0), F)
@@ -293,6 +299,8 @@ def _context(model) -> Context:
                 if a.name == "value":
                     dtypes[node.output[0]] = _DTYPES.get(a.t.data_type, str(a.t.data_type))
                     ranks[node.output[0]] = len(a.t.dims)
+        elif node.op_type == "DequantizeLinear" and node.input[0] in constants:
+            constants.add(node.output[0])  # quantised weights: TensorRT folds them
     return Context(dtypes, ranks, constants)
 
 
