@@ -16,7 +16,6 @@ difference of the inverse distance from the fp32 file.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import sys
 import tempfile

@@ -1,7 +1,6 @@
 """Reduced-precision export: the fp16 plan's islands in the file, its accuracy against the fp32
 file (and against a naive all-fp16 conversion), and the TensorRT report on fp16 graphs."""
 
-import copy
 import dataclasses
 import json
 

@@ -14,7 +14,7 @@ engine). --rig-as-input makes intrinsics, poses, reference point and candidates 
 a re-calibrated rig (same camera model and image size) needs no new export.
 
 After writing, the file is checked (onnx checker), run with onnxruntime on a rendered sample and
-compared with JAX (inverse distance within 1e-4 1/m; 1e-2 for --precision fp16, 5e-2 for
+compared with JAX (inverse distance within 1e-4 1/m; 1e-2 for --precision fp16, 0.2 for
 int8), and a TensorRT compatibility report
 (8.5 / 10.x / 11.x) is printed. The exit code is non-zero when a check fails.
 """

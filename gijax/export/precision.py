@@ -48,9 +48,10 @@ SAMPLING_OPS = frozenset({"GatherND", "GatherElements", "Gather", "GridSample"})
 SOFTMAX_OPS = frozenset({"Softmax", "LogSoftmax"})
 PRECISIONS = ("fp32", "fp16", "int8")
 DEFAULT_CALIBRATION_SCENES = 8
-# Inverse-distance tolerance (1/m) of an export against JAX, per precision. fp16: about 6x the
-# largest difference the plan gives for the bundled G16VV-cpu (1.6e-3 1/m, docs/deploy.md).
-VALIDATE_ATOL = {"fp32": 1e-4, "fp16": 1e-2, "int8": 5e-2}
+# Largest inverse-distance difference (1/m) from JAX an export may show, per precision: about 6x
+# (fp16) and 3x (int8) the largest the bundled G16VV-cpu gives on rendered scenes (1.6e-3 and
+# 6.5e-2 1/m, docs/deploy.md).
+VALIDATE_ATOL = {"fp32": 1e-4, "fp16": 1e-2, "int8": 2e-1}
 # Inputs whose type the operator fixes to float32 whatever the data type (ONNX spec).
 _FLOAT32_ONLY_INPUTS = {"Resize": (2,), "Upsample": (1,)}
 _SUFFIX16, _SUFFIX32 = "__fp16", "__fp32"
@@ -196,16 +197,6 @@ def naive_fp16(proto) -> dict:
     """Every float node in float16 (interface float32): the comparison for the plan."""
     counts = apply_fp16(proto, [Island(0, len(proto.graph.node) - 1, 0)])
     return dict(counts, islands=[])
-
-
-def tensor_precisions(proto) -> dict:
-    """Count of float32 and float16 tensors the graph's nodes write (for reports and tests)."""
-    from gijax.export.onnx_export import _dtype_map
-
-    types = _dtype_map(proto)
-    produced = [n for node in proto.graph.node for n in node.output]
-    return {"fp32": sum(types.get(n) == FLOAT for n in produced),
-            "fp16": sum(types.get(n) == FLOAT16 for n in produced)}
 
 
 def quantize_int8(fp32_path, out_path, calibration_feeds) -> dict:
