@@ -14,7 +14,8 @@ engine). --rig-as-input makes intrinsics, poses, reference point and candidates 
 a re-calibrated rig (same camera model and image size) needs no new export.
 
 After writing, the file is checked (onnx checker), run with onnxruntime on a rendered sample and
-compared with JAX (inverse distance within 1e-4 1/m), and a TensorRT compatibility report
+compared with JAX (inverse distance within 1e-4 1/m; 1e-2 for --precision fp16, 0.2 for
+int8), and a TensorRT compatibility report
 (8.5 / 10.x / 11.x) is printed. The exit code is non-zero when a check fails.
 """
 
@@ -22,6 +23,7 @@ compared with JAX (inverse distance within 1e-4 1/m), and a TensorRT compatibili
 def register(subparsers) -> None:
     from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
     from gijax.cli.options import CKPT_HELP, add_panorama_options
+    from gijax.export.precision import DEFAULT_CALIBRATION_SCENES, PRECISIONS
 
     p = subparsers.add_parser("export", help=HELP, description=DESCRIPTION,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -42,6 +44,14 @@ def register(subparsers) -> None:
     p.add_argument("--candidates", default="train", metavar=METAVAR,
                    help="candidates baked in / used for validation: " + CANDIDATES_HELP)
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
+                   help="fp32 (default), or fp16: feature extractor, cost-volume convolution "
+                   "and U-Net in float16, sampling, softmax and regression kept float32 by "
+                   "casts; int8: those convolutions quantised (QDQ, per-channel weights), the "
+                   "rest float32; inputs and outputs stay float32 (docs/deploy.md)")
+    p.add_argument("--calibration", type=int, default=DEFAULT_CALIBRATION_SCENES,
+                   metavar="SCENES", help="int8: rendered scenes of the rig the activation "
+                   f"ranges are calibrated on (default {DEFAULT_CALIBRATION_SCENES})")
     p.add_argument("--no-validate", action="store_true",
                    help="skip the onnxruntime-vs-JAX comparison on a rendered sample")
     add_panorama_options(p, "the model's output size")
@@ -53,6 +63,7 @@ def run(args) -> int:
 
     from gijax.candidates.spec import resolve_candidates
     from gijax.export.onnx_export import export_onnx, validate_export
+    from gijax.export.precision import VALIDATE_ATOL
     from gijax.export.trt_compat import check_model
     from gijax.io.paths import check_output_file
     from gijax.io.rigfile import load_rig
@@ -78,7 +89,8 @@ def run(args) -> int:
           f"{np.round(candidates, 3).tolist()} m")
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,
                          dynamic_batch=args.dynamic_batch, rig_as_input=args.rig_as_input,
-                         extra_metadata={"source": label, "rig": str(args.rig)}, pano=pano)
+                         extra_metadata={"source": label, "rig": str(args.rig)}, pano=pano,
+                         precision=args.precision, calibration_scenes=args.calibration)
     print(f"wrote {result.path} ({result.metadata['mode']})")
     for name, shape in result.inputs.items():
         print(f"  input  {name:13s} {shape}")
@@ -86,7 +98,8 @@ def run(args) -> int:
         print(f"  output {name:13s} {shape}")
     status = 0
     if not args.no_validate:
-        v = validate_export(result.path, model, rig, candidates)
+        v = validate_export(result.path, model, rig, candidates,
+                            atol=VALIDATE_ATOL[args.precision])
         print(f"onnxruntime vs JAX on a rendered sample: max |d inv_distance| = "
               f"{v['max_abs_inv_distance']:.2e} 1/m, max |d entropy| = "
               f"{v['max_abs_entropy']:.2e}, valid mismatches {v['valid_mismatch']}: "

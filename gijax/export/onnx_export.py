@@ -44,6 +44,8 @@ import numpy as np
 from flax import nnx
 
 from gijax.export.graph import intrinsics_layout, rig_from_arrays
+from gijax.export.precision import (DEFAULT_CALIBRATION_SCENES, PRECISIONS, plan_fp16,
+                                    quantize_int8)
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, scale_rig
@@ -144,7 +146,8 @@ def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: boo
 def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathLike, *,
                 opset: int = DEFAULT_OPSET, batch: int = 1, dynamic_batch: bool = False,
                 rig_as_input: bool = False, extra_metadata: dict | None = None,
-                pano: Panorama | None = None) -> ExportResult:
+                pano: Panorama | None = None, precision: str = "fp32",
+                calibration_scenes: int = DEFAULT_CALIBRATION_SCENES) -> ExportResult:
     """Export ``model`` for ``rig`` (at its calibrated size) to the ONNX file ``path``.
 
     Args:
@@ -159,6 +162,12 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
       extra_metadata: more string metadata to store (e.g. the checkpoint path).
       pano: the output panorama (default the model's own, :func:`gijax.model.model_panorama`),
         oriented by ``rig``'s panorama frame (baked into the file).
+      precision: 'fp32', or 'fp16' for the precision plan of :mod:`gijax.export.precision`
+        (float16 feature extractor and U-Net, float32 sampling and regression; the inputs
+        and outputs stay float32), or 'int8' for that plan quantised (QDQ, per-channel int8
+        convolution weights in the islands, everything else float32 and unquantised).
+      calibration_scenes: int8 only: rendered scenes of ``rig`` the activation ranges are
+        calibrated on (seeds 1000, 1001, ...).
 
     Returns:
       an :class:`ExportResult`.
@@ -170,6 +179,13 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     if opset not in SUPPORTED_OPSETS:
         raise ValueError(f"opset must be in {SUPPORTED_OPSETS.start}..{SUPPORTED_OPSETS.stop - 1}"
                          f"; found {opset}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}; found "
+                         f"{precision!r}")
+    if precision == "int8" and (int(calibration_scenes) != calibration_scenes
+                                or calibration_scenes < 1):
+        raise ValueError(f"calibration_scenes must be a positive integer; found "
+                         f"{calibration_scenes}")
     if not dynamic_batch and (int(batch) != batch or batch < 1):
         raise ValueError(f"batch must be a positive integer; found {batch}")
     check_export_inputs(model, rig, candidates)
@@ -194,6 +210,15 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
         quiet.setLevel(level)
     legalise(proto)
     metadata = export_metadata(cfg, run_rig, candidates, rig_as_input, dynamic_batch, pano)
+    if precision != "fp32":  # an fp32 file stays byte-for-byte what it was
+        metadata["precision"] = precision
+    if precision == "fp16":
+        metadata["fp16_islands"] = json.dumps(plan_fp16(proto)["islands"])
+    if precision == "int8":
+        proto, islands = _quantized(proto, cfg, rig, run_rig, candidates, rig_as_input,
+                                    int(calibration_scenes))
+        metadata.update(int8_islands=json.dumps(islands),
+                        calibration=f"{int(calibration_scenes)} rendered scenes, seeds 1000+")
     metadata.update({k: str(v) for k, v in (extra_metadata or {}).items()})
     for key, value in metadata.items():
         entry = proto.metadata_props.add()
@@ -204,6 +229,35 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     bdim = "B" if dynamic_batch else int(batch)
     outputs = {k: [bdim, *pano.shape] for k in OUTPUTS}
     return ExportResult(str(path), inputs, outputs, metadata)
+
+
+def _quantized(proto, cfg, rig: Rig, run_rig: Rig, candidates, rig_as_input: bool,
+               scenes: int):
+    """``proto`` quantised to int8 by :func:`gijax.export.precision.quantize_int8`, calibrated
+    on ``scenes`` rendered samples of ``rig``; returns (the new proto, its islands)."""
+    import tempfile
+
+    import onnx
+    from onnx import helper
+
+    from gijax.export.ort_predict import rig_feed
+
+    feeds = []
+    for i in range(scenes):
+        images, masks = rendered_inputs(cfg, rig, seed=1000 + i)
+        feed = {IMAGES: images, MASKS: masks}
+        if rig_as_input:
+            feed.update(rig_feed(run_rig, candidates))
+        feeds.append(feed)
+    with tempfile.TemporaryDirectory() as tmp:
+        src, dst = Path(tmp) / "fp32.onnx", Path(tmp) / "int8.onnx"
+        onnx.save_model(proto, str(src))
+        info = quantize_int8(src, dst, feeds)
+        quantized = onnx.load(str(dst))
+    del quantized.metadata_props[:]
+    opsets = [helper.make_opsetid(o.domain, o.version) for o in quantized.opset_import]
+    quantized.ir_version = min(quantized.ir_version, helper.find_min_ir_version_for(opsets))
+    return quantized, info["islands"]
 
 
 def export_metadata(cfg, run_rig: Rig, candidates, rig_as_input: bool,

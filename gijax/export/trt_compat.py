@@ -15,6 +15,10 @@ Graph-level rules (errors unless stated):
 * int64 / float64 tensors inside the graph: a *warning* on 8.5 (the parser casts them down to
   int32 / float32, clamping values), fine on 10.x and later;
 * symbolic (dynamic) dimensions: a *warning* (the engine needs an optimisation profile).
+* float16 tensors (a ``--precision fp16`` export): a *warning* on 8.5 (no strongly typed mode:
+  the ``--fp16`` builder flag lets TensorRT pick per layer, so the file's float32 islands are a
+  request, not a guarantee) and on 10.x (build with ``--stronglyTyped`` to run the types as
+  written); 11.x networks are strongly typed.
 
 Operator rules (:data:`OP_RULES`): the first TensorRT version that parses the operator and the
 data types it accepts. Notable rows:
@@ -27,6 +31,11 @@ data types it accepts. Notable rows:
   (jax2onnx does not produce them, and TensorRT restricts their padding and output shape; the
   network uses upsample + conv instead).
 * ``Range``: float start/limit/delta must be constants.
+* ``QuantizeLinear`` (float input) and ``DequantizeLinear`` (int8 input; an int32 bias is
+  rejected): explicit int8 quantisation, from 8.5. A ``Conv`` weight that is a
+  ``DequantizeLinear`` of a constant counts as constant.
+* ``Cast``: to f32, f16, i32, i64, i8, u8 or bool (i64 cast down on 8.5); bf16 from 9.0; f64
+  and other targets are rejected.
 * Reductions, Softmax, trigonometry, ``Floor``, ``Sqrt``, ``Pow``...: float only.
 * Elementwise arithmetic, comparisons, ``Where``, gathers, shape ops: float, int32 (int64 cast
   down) and, where the op moves data only, int8 / bool.
@@ -131,6 +140,19 @@ def _clip_check(node, ctx, target):
     return None
 
 
+_CAST_TARGETS = frozenset({"f32", "f16", "i32", "i64", "i8", "u8", "bool"})
+
+
+def _cast_check(node, ctx, target):
+    to = next((a.i for a in node.attribute if a.name == "to"), None)
+    name = _DTYPES.get(to, str(to))
+    if name == "bf16" and target.version < (9, 0):
+        return "Cast to bf16: TensorRT reads bf16 from 9.0"
+    if name not in _CAST_TARGETS | {"bf16"}:
+        return f"Cast to {name}: TensorRT casts to {', '.join(sorted(_CAST_TARGETS))} only"
+    return None
+
+
 def _einsum_check(node, ctx, target):
     eq = next((a.s.decode() for a in node.attribute if a.name == "equation"), "")
     if "..." in eq:
@@ -161,7 +183,10 @@ def _rows():
                "GatherElements", "GatherND", "Constant", "ConstantOfShape", "Pad",
                "ScatterND", "ScatterElements", "DepthToSpace", "SpaceToDepth"):
         rows[op] = OpRule(v85, MOVE)
-    rows["Cast"] = OpRule(v85, MOVE | {"u8"})
+    rows["Cast"] = OpRule(v85, MOVE | {"u8"}, _cast_check)
+    # Explicit (QDQ) int8 quantisation: float in, int8 out and back.
+    rows["QuantizeLinear"] = OpRule(v85, F)
+    rows["DequantizeLinear"] = OpRule(v85, frozenset({"i8"}))
     rows["Where"] = OpRule(v85, FIB, data_input=1)
     rows["IsNaN"] = OpRule(v85, FI)
     rows["IsInf"] = OpRule((10, 0), F)
@@ -274,6 +299,8 @@ def _context(model) -> Context:
                 if a.name == "value":
                     dtypes[node.output[0]] = _DTYPES.get(a.t.data_type, str(a.t.data_type))
                     ranks[node.output[0]] = len(a.t.dims)
+        elif node.op_type == "DequantizeLinear" and node.input[0] in constants:
+            constants.add(node.output[0])  # quantised weights: TensorRT folds them
     return Context(dtypes, ranks, constants)
 
 
@@ -320,6 +347,16 @@ def check_model(model, targets=TARGETS) -> CompatReport:
             findings.append(Finding(t.key, "warning", "(graph)",
                                     f"dynamic dimensions in {', '.join(dynamic)}: build with an "
                                     f"optimisation profile (--minShapes/--optShapes/--maxShapes)"))
+    if any(dt == "f16" for dt in ctx.dtypes.values()):
+        for t in targets:
+            if t.version < (10, 0):
+                findings.append(Finding(t.key, "warning", "(graph)", (
+                    "float16 tensors: no strongly typed mode before 10.0; build with --fp16 "
+                    "(the builder picks per layer, the float32 islands are not enforced)")))
+            elif t.version < (11, 0):
+                findings.append(Finding(t.key, "warning", "(graph)", (
+                    "float16 tensors: build with --stronglyTyped to run the file's types as "
+                    "written (--fp16 lets the builder pick per layer)")))
     wide = {name for name, dt in ctx.dtypes.items() if dt in ("i64", "f64")}
     op_counts, op_dtypes = Counter(), defaultdict(set)
     wide_ops = defaultdict(Counter)
