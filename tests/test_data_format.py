@@ -178,8 +178,16 @@ def test_version_1_datasets_read_and_copies_that_disagree_are_refused(rig, datas
     np.testing.assert_array_equal(np.asarray(back.rig.translations),
                                   np.asarray(rig.translations, np.float32))
     np.testing.assert_array_equal(back[1]["images"], synthetic_sample(rig, 1)["images"])
-    with pytest.raises(ValueError, match=r"format version 1 .* use a new output folder"):
-        DatasetWriter(root, rig, PANO)
+    # An old dataset is confirmed (same panorama, rig and settings) and left as it is: asking
+    # for what it holds writes nothing; appending to it is refused.
+    before = _tree(root)
+    with DatasetWriter(root, rig, PANO) as old:
+        old.request(old.num_committed)
+        with pytest.raises(ValueError, match=r"format version 1 .* use a new output folder"):
+            old.write(synthetic_sample(rig, 99))
+        with pytest.raises(ValueError, match=r"format version 1 .* use a new output folder"):
+            old.request(old.num_committed + 1)
+    assert _tree(root) == before
     graph = json.loads((root / "frame_graph.json").read_text())
     graph["frames"]["cam1"]["translation"][0] += 0.001
     (root / "frame_graph.json").write_text(json.dumps(graph))

@@ -113,12 +113,13 @@ class DatasetWriter:
         if manifest.get("format") != fmt.FORMAT_NAME:
             raise ValueError(f"{path}: format {manifest.get('format')!r} is not "
                              f"{fmt.FORMAT_NAME!r}; cannot append to it")
-        version = fmt.manifest_version(manifest, path)
-        if version != fmt.FORMAT_VERSION:
-            raise ValueError(f"{path}: format version {version} (the rig stored in several "
-                             f"documents); this gijax appends only to version "
-                             f"{fmt.FORMAT_VERSION} datasets; use a new output folder")
-        found = fmt.load_json(self.root / fmt.METADATA, fmt.METADATA)
+        self.version = fmt.manifest_version(manifest, path)
+        metadata = fmt.load_json(self.root / fmt.METADATA, fmt.METADATA)
+        found = metadata
+        if self.version == 1:
+            # Version 1 also kept the rig's cameras and occluder here (compared below, through
+            # the rig); the rest must match like a current dataset's.
+            found = {k: v for k, v in found.items() if k not in ("cameras", "occluder")}
         want = _comparable(self.meta)
         if found != want:
             diff = sorted(k for k in set(found) | set(want) if found.get(k) != want.get(k))
@@ -128,7 +129,7 @@ class DatasetWriter:
         stored = self.rig.replace(masks=tuple(
             None if m is None else (np.asarray(m) >= 0.5).astype(np.float32)
             for m in self.rig.masks))
-        diff = fmt.rig_differences(fmt.read_rig(self.root, manifest, found), stored)
+        diff = fmt.rig_differences(fmt.read_rig(self.root, manifest, metadata), stored)
         if diff:
             raise ValueError(f"{self.root / fmt.RIG_FILE} differs from the rig being written "
                              f"({'; '.join(diff)}); use a new output folder")
@@ -167,7 +168,15 @@ class DatasetWriter:
     def _write(self, path: Path, data: bytes) -> None:
         write_bytes_atomic(path, data, suffix=pngio.PARTIAL_SUFFIX, fsync=self.durable)
 
+    def _require_current(self) -> None:
+        """A dataset of an older format is read and confirmed, never appended to."""
+        if getattr(self, "version", fmt.FORMAT_VERSION) != fmt.FORMAT_VERSION:
+            raise ValueError(f"{self.root / fmt.MANIFEST}: format version {self.version} (the "
+                             f"rig stored in several documents); this gijax appends only to "
+                             f"version {fmt.FORMAT_VERSION} datasets; use a new output folder")
+
     def _write_manifest(self) -> None:
+        self._require_current()
         doc = fmt.manifest_doc(self.trajectories, self.trajectory_size, self.generator,
                                self.requested)
         self._write(self.root / fmt.MANIFEST, fmt.dumps(doc))
@@ -222,6 +231,7 @@ class DatasetWriter:
         """Write and commit one sample; returns its index. ``seed`` is recorded in the CSV."""
         if not self._lock.held:
             raise ValueError(f"dataset writer of {self.root} is closed")
+        self._require_current()
         self._check_sample(sample)
         index = self.num_committed
         t, frame = divmod(index, self.trajectory_size)
