@@ -421,6 +421,11 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     meta = {"title": title, "candidates_m": cand.tolist(), "shape": list(distance.shape),
             "valid_fraction": float(valid.mean()), "valid_pixels": int(valid.sum()),
             "invalid_pixels": INVALID, "points": int(len(points)),
+            # What points.ply leaves out of the valid pixels, and why: far points (sky, the
+            # candidate list's far end) would dwarf the scene in a viewer.
+            "points_left_out": {"pixels": int(valid.sum() - len(points)),
+                                "reason": f"distance beyond {limit:g} m (max_point_distance, "
+                                          f"by default the farthest candidate)"},
             "panorama": {"coverage": coverage_of(pano),
                          "latitude_deg": [math.degrees(pano.lat_min), math.degrees(pano.lat_max)],
                          "longitude": "column grows to the right seen from the centre, pole "

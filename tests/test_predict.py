@@ -133,6 +133,8 @@ def test_written_files(setup, tmp_path):
     np.testing.assert_array_equal(cols, (out["colour"][keep] * 255 + 0.5).astype(np.uint8))
     meta = json.loads((tmp_path / "pred" / "prediction.json").read_text())
     assert meta["points"] == len(pts) and np.allclose(meta["candidates_m"], G8)
+    assert meta["points_left_out"]["pixels"] == int(out["valid"].sum()) - keep.sum()
+    assert "beyond 100 m" in meta["points_left_out"]["reason"]
     rgb = cv2.imread(paths["rgb_png"])
     assert rgb.shape == out["rgb"].shape
     want_rgb = np.where(out["rgb_valid"][..., None], out["rgb"], 0.0)
