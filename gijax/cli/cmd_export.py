@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
-
 HELP = "export a model (with its rig) to ONNX for onnxruntime / TensorRT"
 DESCRIPTION = """\
 Export raw fisheye images -> surrogate resampling -> features -> sphere sweep -> cost volume ->
@@ -20,18 +18,17 @@ compared with JAX (inverse distance within 1e-4 1/m), and a TensorRT compatibili
 
 
 def register(subparsers) -> None:
-    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
-    from gijax.cli.options import CKPT_HELP, add_panorama_options
+    from gijax.cli.options import (CKPT_HELP, RawHelpFormatter, add_candidates_option,
+                                   add_panorama_options, add_rig_option)
 
     p = subparsers.add_parser("export", help=HELP, description=DESCRIPTION,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+                              formatter_class=RawHelpFormatter)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--ckpt", metavar="PATH|NAME", help=CKPT_HELP)
     src.add_argument("--preset", metavar="NAME|FILE", help="model preset (or a JSON file of "
                      "ModelConfig fields) with random, UNTRAINED weights (for testing the "
                      "deployment path only)")
-    p.add_argument("--rig", required=True, metavar="NAME|FILE",
-                   help="built-in rig name or a rig / Kalibr / basalt calibration file")
+    add_rig_option(p, required=True)
     p.add_argument("--out", required=True, metavar="FILE", help="output .onnx file")
     p.add_argument("--opset", type=int, default=17, help="ONNX opset (default 17: TensorRT 8.5 "
                    "and later)")
@@ -39,8 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("--dynamic-batch", action="store_true", help="symbolic batch axis")
     p.add_argument("--rig-as-input", action="store_true",
                    help="intrinsics, poses, reference and candidates as graph inputs")
-    p.add_argument("--candidates", default="train", metavar=METAVAR,
-                   help="candidates baked in / used for validation: " + CANDIDATES_HELP)
+    add_candidates_option(p, "train", "'train'", what="candidates baked in / used for "
+                                                       "validation")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.add_argument("--no-validate", action="store_true",
                    help="skip the onnxruntime-vs-JAX comparison on a rendered sample")
