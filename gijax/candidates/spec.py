@@ -103,3 +103,10 @@ def resolve_candidates(spec: str, rig, n: int, d_min: float = 0.5, d_max: float 
     else:
         cand, label = _read_spec_file(spec), f"from {spec}"
     return check_candidates(cand, f"--candidates {spec}", count=None if any_count else n), label
+
+
+def model_candidates(spec: str, rig, config, train=None) -> tuple[np.ndarray, str]:
+    """:func:`resolve_candidates` for a network configuration: its candidate count, range
+    (``num_candidates``, ``d_min``, ``d_max``) and kind (``candidates``) from ``config``."""
+    return resolve_candidates(spec, rig, config.num_candidates, config.d_min, config.d_max,
+                              train=train, kind=config.candidates)

@@ -17,9 +17,9 @@ gijax dataset rendered for the rig, e.g. by 'gijax render --rig R') or 'photomet
 labels: every predicted point is projected into the cameras and their colours compared, masks
 respected; the labels of --data are ignored).
 
-Writes --out (a JSON object whose 'candidates' list every candidate spec takes as a file) and,
-beside it, OUT.adapt/ with the checkpoint, the loss curve (curve.csv, curve.png) and record.json (the
-command). Running the same command again resumes. Evaluate the result on held-out scenes with
+Writes --out (a JSON object whose 'candidates' list every candidate spec takes as a file)
+and, beside it, OUT.adapt/ with the checkpoint, the loss curve (curve.csv, curve.png) and
+record.json (the command). Running the same command again resumes. Evaluate the result on held-out scenes with
 'gijax eval --candidates OUT'.
 """
 
@@ -65,7 +65,7 @@ def _command(args) -> str:
 def run(args) -> int:
     import numpy as np
 
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.io.paths import check_output_file
     from gijax.model import model_panorama
     from gijax.store import load_model
@@ -91,8 +91,7 @@ def run(args) -> int:
                          f"model {mc.name!r} outputs {want.height} x {want.width}; render the "
                          f"data at the model's size (gijax render --panorama-size "
                          f"{want.height}x{want.width} --scale {mc.image_scale:g})")
-    initial, how = resolve_candidates(args.init, rig, mc.num_candidates, mc.d_min, mc.d_max,
-                                      train=train_cand, kind=mc.candidates)
+    initial, how = model_candidates(args.init, rig, mc, train=train_cand)
     print(f"model {mc.name}; rig {args.rig or 'of ' + str(args.data)}; start: {how}")
     make = dataset_stream_factory(reader, rig, config.batch_size, config.seed, mc.surrogate_hw,
                                   workers=args.workers, what="adaptation")

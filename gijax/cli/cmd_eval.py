@@ -99,7 +99,7 @@ def run(args) -> int:
     import jax
 
     from gijax.bench.memory import device_peak_mib, host_peak_rss_mib
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.evaluate.loop import evaluate_predictions
     from gijax.predict import label_batches, learned_batch_predictor, rtss_batch_predictor
     from gijax.store import load_model
@@ -129,8 +129,7 @@ def run(args) -> int:
     else:
         rig = reader.rig
     if args.method == "learned":
-        cand, how = resolve_candidates(args.candidates or "train", rig, mc.num_candidates,
-                                       mc.d_min, mc.d_max, train=train_cand)
+        cand, how = model_candidates(args.candidates or "train", rig, mc, train=train_cand)
         from gijax.model import coverage_note
 
         # The network runs on the labels' panorama (frame, coverage and size).

@@ -48,7 +48,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.export.onnx_export import export_onnx, validate_export
     from gijax.export.trt_compat import check_model
     from gijax.io.paths import check_output_file
@@ -68,9 +68,7 @@ def run(args) -> int:
     note = coverage_note(config, pano)
     if note:
         print(note)
-    candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
-                                         config.d_min, config.d_max, train=train_cand,
-                                         kind=config.candidates)
+    candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)
     print(f"exporting {label}; rig {args.rig}; candidates: {how} "
           f"{np.round(candidates, 3).tolist()} m")
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,

@@ -110,7 +110,7 @@ def run(args) -> int:
 
 
 def _run_learned(args, rig, images: np.ndarray, masks) -> int:
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.cli.options import panorama_from_args
     from gijax.model import model_panorama
     from gijax.predict import LearnedPredictor
@@ -119,9 +119,7 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
     hemi = model_panorama(config, "hemisphere").shape
     rig, pano = panorama_from_args(args, rig, hemi)
-    candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
-                                         config.d_min, config.d_max, train=train_cand,
-                                         kind=config.candidates)
+    candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)
     result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args.out, title)
@@ -163,7 +161,7 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
 
 
 def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.export.ort_predict import OnnxPredictor
     from gijax.predict import point_colours
 
@@ -180,8 +178,7 @@ def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
         from gijax.store.configs import model_config_from_dict
 
         config = model_config_from_dict(pred.info.config)
-        candidates = resolve_candidates(args.candidates, rig, config.num_candidates,
-                                        config.d_min, config.d_max)[0]
+        candidates = model_candidates(args.candidates, rig, config)[0]
     rig = pred.info.oriented_rig(rig)
     result = pred.predict(rig, images, masks, candidates, log=print)
     small = pred.info.scaled_rig(rig)

@@ -143,7 +143,7 @@ def _training_list(args, cfg):
     """--candidates as a list of metres (None: the preset's own kind, decided by the trainer).
     A keyword is resolved once, here, for the training rig (--rig, else the first dataset's,
     in the dataset's panorama frame as the trainer uses it)."""
-    from gijax.candidates.spec import TRAIN, resolve_candidates
+    from gijax.candidates.spec import TRAIN, model_candidates
 
     if args.candidates in (None, TRAIN):
         return None
@@ -158,6 +158,6 @@ def _training_list(args, cfg):
             from gijax.io.rigfile import load_rig
 
             rig = load_rig(args.rig).replace(panorama_rotation=rig.panorama_rotation)
-    cand, how = resolve_candidates(args.candidates, rig, mc.num_candidates, mc.d_min, mc.d_max)
+    cand, how = model_candidates(args.candidates, rig, mc)
     print(f"training candidates: {how}; {len(cand)} from {cand[0]:.3f} to {cand[-1]:.3f} m")
     return cand.tolist()
