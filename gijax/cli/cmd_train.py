@@ -143,11 +143,15 @@ def _training_list(args, cfg):
     """--candidates as a list of metres (None: the preset's own kind, decided by the trainer).
     A keyword is resolved once, here, for the training rig (--rig, else the first dataset's,
     in the dataset's panorama frame as the trainer uses it)."""
-    from gijax.candidates.spec import TRAIN, model_candidates
+    from gijax.candidates.spec import KEYWORDS, TRAIN, model_candidates, resolve_candidates
 
     if args.candidates in (None, TRAIN):
         return None
     mc = cfg.model_config()
+    if args.candidates not in KEYWORDS:
+        # A file of any length here: the trainer reports a count that does not fit the preset.
+        return resolve_candidates(args.candidates, None, mc.num_candidates,
+                                  any_count=True)[0].tolist()
     rig = None
     if args.candidates in ("spacing", "rig"):      # the recomputed lists that need the rig
         from gijax.train.sources import open_dataset
