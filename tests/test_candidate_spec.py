@@ -73,3 +73,26 @@ def test_file_spec_count_and_order_are_checked(tmp_path, rig):
     unordered.write_text("[0.5, 2.0, 1.0]")
     with pytest.raises(ValueError, match="ascending"):
         resolve_candidates(str(unordered), rig, 3)
+
+
+def test_train_takes_the_same_specs(tmp_path, capsys):
+    # 'gijax train --candidates': a file as before, and the keywords (EV needs no rig).
+    from gijax.cli import build_parser
+    from gijax.cli.cmd_train import _training_list
+    from gijax.train.config import TrainConfig
+
+    cfg = TrainConfig(preset="G16VV-cpu")
+    mc = cfg.model_config()
+
+    def listed(spec):
+        args = build_parser().parse_args(["train", "--preset", "G16VV-cpu", "--data", "d",
+                                          "--out", "o", "--candidates", spec])
+        return _training_list(args, cfg)
+
+    assert listed("train") is None              # the preset's own kind, chosen by the trainer
+    want = 1.0 / np.linspace(1.0 / mc.d_min, 1.0 / mc.d_max, mc.num_candidates)
+    np.testing.assert_allclose(listed("ev"), want, rtol=2e-6)     # computed in float32
+    (tmp_path / "list.txt").write_text(" ".join(str(v) for v in want[::-1] * 0 + want))
+    np.testing.assert_allclose(listed(str(tmp_path / "list.txt")), want, rtol=1e-12)
+    with pytest.raises(FileNotFoundError, match="not one of the keywords train, spacing, rig"):
+        listed("spcing")

@@ -64,7 +64,7 @@ def test_rtss_refuses_a_model_and_net_needs_one(ring_data, tmp_path, capsys):
     rc = main(["eval", "--method", "rtss", "--ckpt", "G16VV-cpu", "--data", data])
     assert rc == 1 and "drop --ckpt" in capsys.readouterr().err
     rc = main(["eval", "--data", data])
-    assert rc == 1 and "--method net needs --ckpt" in capsys.readouterr().err
+    assert rc == 1 and "--method learned needs --ckpt" in capsys.readouterr().err
     img = tmp_path / "a.png"
     cv2.imwrite(str(img), np.zeros((128, 128, 3), np.uint8))
     rc = main(["predict", "--method", "rtss", "--ckpt", "G16VV-cpu", "--rig", "paper-train",

@@ -140,6 +140,7 @@ NOT_TRACED = {
     "gijax.baseline.rtss.choose_candidates": "command-line spec (names, files) to NumPy",
     "gijax.candidates.spec.read_candidate_file": "reads a file",
     "gijax.candidates.spec.resolve_candidates": "command-line spec (names, files) to NumPy",
+    "gijax.candidates.spec.model_candidates": "command-line spec (names, files) to NumPy",
     "gijax.baseline.rtss.rtss_predict_sample": "NumPy outputs for one loaded sample",
     "gijax.calibrate.refine.check_texture": "argument check of concrete measures",
     "gijax.calibrate.refine.check_overlap": "argument check of concrete measures",

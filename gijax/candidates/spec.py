@@ -27,8 +27,9 @@ from gijax.candidates.validation import check_candidates
 
 TRAIN = "train"
 METAVAR = "train|spacing|rig|ev|FILE"
-HELP = ("'train' (default): the training list (from the run folder or bundle; for an untrained "
-        "--preset, the preset's kind in closed form: EV, or GI with the paper's baseline); "
+KEYWORDS = (TRAIN, "spacing", "rig", "ev")
+HELP = ("'train': the training list (from the run folder or bundle; for a model without one, "
+        "its preset's kind in closed form: EV, or GI with the paper's baseline); "
         "'spacing': the paper's list recomputed for the rig (Table II), the closed-form GI list "
         "with the rig's camera spacing as the baseline (same count, no retraining needed); "
         "'rig': gijax's extension, rig-aware GI (equal mean pixel steps over the panorama's "
@@ -64,6 +65,15 @@ def read_candidate_file(path: str | os.PathLike) -> np.ndarray:
         raise ValueError(f"candidate file {f}: expected distances in metres ({exc})") from exc
 
 
+def _read_spec_file(spec: str) -> np.ndarray:
+    """The file a ``--candidates`` spec that is no keyword names; when there is no such file,
+    one line listing the keywords (a misspelt keyword is the likelier mistake)."""
+    if not Path(spec).is_file():
+        raise FileNotFoundError(f"--candidates {spec}: not one of the keywords "
+                                f"{', '.join(KEYWORDS)}, and no candidate file {spec} exists")
+    return read_candidate_file(spec)
+
+
 def resolve_candidates(spec: str, rig, n: int, d_min: float = 0.5, d_max: float = 100.0, *,
                        train=None, kind: str | None = None,
                        any_count: bool = False) -> tuple[np.ndarray, str]:
@@ -91,5 +101,12 @@ def resolve_candidates(spec: str, rig, n: int, d_min: float = 0.5, d_max: float 
         cand = np.asarray(recomputed_candidates(spec, n, rig, d_min, d_max), np.float64)
         label = LABELS[spec]
     else:
-        cand, label = read_candidate_file(spec), f"from {spec}"
+        cand, label = _read_spec_file(spec), f"from {spec}"
     return check_candidates(cand, f"--candidates {spec}", count=None if any_count else n), label
+
+
+def model_candidates(spec: str, rig, config, train=None) -> tuple[np.ndarray, str]:
+    """:func:`resolve_candidates` for a network configuration: its candidate count, range
+    (``num_candidates``, ``d_min``, ``d_max``) and kind (``candidates``) from ``config``."""
+    return resolve_candidates(spec, rig, config.num_candidates, config.d_min, config.d_max,
+                              train=train, kind=config.candidates)

@@ -3,9 +3,7 @@ frozen (:func:`gijax.train.adapt.adapt_candidates`)."""
 
 from __future__ import annotations
 
-import argparse
 import shlex
-import textwrap
 
 HELP = "adapt a trained model's candidate list to a rig (network frozen)"
 DESCRIPTION = """\
@@ -19,33 +17,29 @@ gijax dataset rendered for the rig, e.g. by 'gijax render --rig R') or 'photomet
 labels: every predicted point is projected into the cameras and their colours compared, masks
 respected; the labels of --data are ignored).
 
-Writes --out (a JSON object whose 'candidates' any --candidates FILE accepts) and, beside it,
-OUT.adapt/ with the checkpoint, the loss curve (curve.csv, curve.png) and record.json (the
-command). Running the same command again resumes. Evaluate the result on held-out scenes with
+Writes --out (a JSON object whose 'candidates' list every candidate spec takes as a file)
+and, beside it, OUT.adapt/ with the checkpoint, the loss curve (curve.csv, curve.png) and
+record.json (the command). Running the same command again resumes. Evaluate the result on held-out scenes with
 'gijax eval --candidates OUT'.
-
-{init}
 """
 
 
 def register(subparsers) -> None:
-    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
-    from gijax.cli.options import CKPT_HELP
+    from gijax.cli.options import (CKPT_HELP, RawHelpFormatter, add_candidates_option,
+                                   add_rig_option)
 
     p = subparsers.add_parser(
-        "adapt-candidates", help=HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=DESCRIPTION.format(init=textwrap.fill(
-            "Starting list (--init): " + CANDIDATES_HELP, 95)))
+        "adapt-candidates", help=HELP, formatter_class=RawHelpFormatter,
+        description=DESCRIPTION)
     p.add_argument("--ckpt", required=True, metavar="PATH|NAME", help=CKPT_HELP)
     p.add_argument("--data", required=True, metavar="DIR",
                    help="dataset of the rig (gijax's layout or the release's, DIR@KEY)")
-    p.add_argument("--rig", metavar="NAME|FILE",
-                   help="rig for the sweep geometry (default: the dataset's rig)")
+    add_rig_option(p, default_help="the dataset's rig")
     p.add_argument("--out", required=True, metavar="LIST.json", help="adapted list file")
     p.add_argument("--loss", choices=("supervised", "photometric"), default="supervised",
                    help="supervised (labels) or photometric (no labels); default supervised")
-    p.add_argument("--init", default="train", metavar=METAVAR,
-                   help="starting list (default 'train', the model's training list)")
+    add_candidates_option(p, "train", "'train', the model's training list", flag="--init",
+                          what="starting list")
     p.add_argument("--steps", type=int, default=200, help="Adam steps (default 200)")
     p.add_argument("--lr", type=float, default=0.05,
                    help="Adam learning rate on the list's logits (default 0.05)")
@@ -71,7 +65,7 @@ def _command(args) -> str:
 def run(args) -> int:
     import numpy as np
 
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.io.paths import check_output_file
     from gijax.model import model_panorama
     from gijax.store import load_model
@@ -95,10 +89,9 @@ def run(args) -> int:
     if args.loss == "supervised" and label is not None and label.shape != want.shape:
         raise ValueError(f"{args.data}: labels are {label.height} x {label.width} panoramas but "
                          f"model {mc.name!r} outputs {want.height} x {want.width}; render the "
-                         f"data at the model's size (gijax render --pano "
-                         f"{want.width}x{want.height} --scale {mc.image_scale:g})")
-    initial, how = resolve_candidates(args.init, rig, mc.num_candidates, mc.d_min, mc.d_max,
-                                      train=train_cand, kind=mc.candidates)
+                         f"data at the model's size (gijax render --panorama-size "
+                         f"{want.height}x{want.width} --scale {mc.image_scale:g})")
+    initial, how = model_candidates(args.init, rig, mc, train=train_cand)
     print(f"model {mc.name}; rig {args.rig or 'of ' + str(args.data)}; start: {how}")
     make = dataset_stream_factory(reader, rig, config.batch_size, config.seed, mc.surrogate_hw,
                                   workers=args.workers, what="adaptation")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
@@ -24,11 +23,11 @@ kinds:
 
 
 def register(subparsers) -> None:
+    from gijax.cli.options import RawHelpFormatter, add_rig_option
+
     p = subparsers.add_parser("candidates", help=HELP, description=DESCRIPTION,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--rig", default="paper-train",
-                   help="built-in layout name (paper-train, paper-test1, paper-test2, "
-                        "paper-test3) or a rig / calibration file (default: paper-train)")
+                              formatter_class=RawHelpFormatter)
+    add_rig_option(p, default="paper-train")
     p.add_argument("-n", "--num", type=int, default=16, help="number of candidates (default 16)")
     p.add_argument("--kind", choices=("gi", "ev", "gi-closed", "gi-spacing"), default="gi",
                    help="candidate kind (default gi, rig-aware)")

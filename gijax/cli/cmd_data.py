@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
+
+from gijax.cli.options import HelpFormatter
 
 MAX_LISTED = 20
 
@@ -23,7 +24,7 @@ def register(subparsers) -> None:
             "holds it now, and files no row lists. Exits 1 on any damaged file or when the "
             "dataset is incomplete (unless --allow-partial). 'gijax train' runs the same check "
             "on its data before it starts."),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     c.add_argument("dir", metavar="DIR", help="dataset folder (the one holding manifest.json)")
     c.add_argument("--allow-partial", action="store_true",
                    help="an incomplete dataset (fewer samples than requested) is not an error")

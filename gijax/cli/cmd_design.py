@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import json
+
+from gijax.cli.options import HelpFormatter
 
 
 def _run(args) -> int:
@@ -72,7 +73,7 @@ def register(subparsers) -> None:
                     "separation, occluder and tilt constraints, with Adam from several random "
                     "starts. Writes a gijax YAML rig file (synthetic 195 deg equidistant "
                     "cameras, LiDAR-like occluder at the footprint's centre). See docs/design.md.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument("--cameras", type=int, default=4, help="number of cameras")
     p.add_argument("--footprint", type=float, default=1.0,
                    help="side of the square (or diameter of the disc) holding the cameras, m")

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-METHODS = ("net", "rtss")
 # One line per --metrics choice, written beside the numbers (gijax.evaluate.metrics has the
 # full definitions).
 METRIC_DEFINITIONS = {
@@ -24,8 +23,8 @@ METRIC_DEFINITIONS = {
 
 
 def register(subparsers) -> None:
-    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
-    from gijax.cli.options import CKPT_HELP
+    from gijax.cli.options import (CKPT_HELP, HelpFormatter, add_candidates_option,
+                                   add_method_option, add_rig_option, add_rtss_preset_option)
 
     p = subparsers.add_parser(
         "eval", help="evaluate a trained run (or the RTSS baseline) on a dataset folder",
@@ -49,25 +48,20 @@ def register(subparsers) -> None:
             "out of MAE, RMSE and the bad rates, reported as 'cov' (the share of scored "
             "pixels with an estimate) and seen by SSIM at the far end of the candidate "
             "range; no metric is NaN because of them."),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument("--ckpt", default=None, metavar="PATH|NAME",
-                   help=CKPT_HELP + " (needed for --method net; refused with --method rtss)")
+                   help=CKPT_HELP + " (needed for --method learned; refused with --method rtss)")
     p.add_argument("--data", required=True,
                    help="dataset folder, gijax's layout or the release's (partition 'validate'; "
                         "DIR@KEY reads partition KEY)")
-    p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
-    p.add_argument("--candidates", default=None, metavar=METAVAR,
-                   help=CANDIDATES_HELP + " Default: 'train' for --method net, the preset's own "
-                        "list for --method rtss.")
+    add_rig_option(p, default_help="the dataset's rig")
+    add_candidates_option(p, None, "'train' for --method learned, the RTSS preset's own list "
+                                   "for --method rtss")
     p.add_argument("--which", default="best", choices=["best", "latest"],
                    help="checkpoint to load: best validated or newest periodic (an unreadable "
                         "one is skipped with a warning; the run folder is only read)")
-    p.add_argument("--method", default="net", choices=METHODS,
-                   help="'net' (the trained network of --ckpt) or 'rtss' (the classical "
-                        "baseline, no model)")
-    p.add_argument("--rtss-preset", default="RS-E32", metavar="NAME",
-                   help="RTSS configuration for --method rtss (RS-E16, RS-G16, RS-E32, RS-G32, "
-                        "RS-E32-AD)")
+    add_method_option(p, aliases=True)
+    add_rtss_preset_option(p)
     p.add_argument("--batch", type=int, default=1, help="samples per forward pass")
     p.add_argument("--limit", type=int, default=0, help="evaluate at most this many samples")
     p.add_argument("--metrics", default="paper", choices=("paper", "gijax"),
@@ -89,7 +83,7 @@ def _rtss_setup(args, rig, reader):
 
     if args.ckpt:
         raise ValueError("--method rtss evaluates the classical baseline, which uses no model; "
-                         "drop --ckpt (or use --method net)")
+                         "drop --ckpt (or use --method learned)")
     config = get_rtss_preset(args.rtss_preset)
     first = reader[0]
     # The size policy of 'gijax predict': the baseline works at the images' own size.
@@ -105,7 +99,7 @@ def run(args) -> int:
     import jax
 
     from gijax.bench.memory import device_peak_mib, host_peak_rss_mib
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.evaluate.loop import evaluate_predictions
     from gijax.predict import label_batches, learned_batch_predictor, rtss_batch_predictor
     from gijax.store import load_model
@@ -117,10 +111,10 @@ def run(args) -> int:
         from gijax.io.paths import check_output_file
 
         check_output_file(args.json, "--json")
-    if args.method == "net" and not args.ckpt:
-        raise ValueError("--method net needs --ckpt (a run folder, bundle or bundled model); "
+    if args.method == "learned" and not args.ckpt:
+        raise ValueError("--method learned needs --ckpt (a run folder, bundle or bundled model); "
                          "--method rtss evaluates the classical baseline without one")
-    if args.method == "net":                 # a wrong model name is reported first
+    if args.method == "learned":                 # a wrong model name is reported first
         model, mc, train_cand = load_model(args.ckpt, args.which)
     reader = open_dataset(args.data, "evaluation", args.allow_partial)
     if args.rig:
@@ -134,9 +128,8 @@ def run(args) -> int:
                              f"({', '.join(reader.rig.names)}); give the dataset's rig")
     else:
         rig = reader.rig
-    if args.method == "net":
-        cand, how = resolve_candidates(args.candidates or "train", rig, mc.num_candidates,
-                                       mc.d_min, mc.d_max, train=train_cand)
+    if args.method == "learned":
+        cand, how = model_candidates(args.candidates or "train", rig, mc, train=train_cand)
         from gijax.model import coverage_note
 
         # The network runs on the labels' panorama (frame, coverage and size).

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
-
 HELP = "export a model (with its rig) to ONNX for onnxruntime / TensorRT"
 DESCRIPTION = """\
 Export raw fisheye images -> surrogate resampling -> features -> sphere sweep -> cost volume ->
@@ -21,19 +19,18 @@ int8), and a TensorRT compatibility report
 
 
 def register(subparsers) -> None:
-    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
-    from gijax.cli.options import CKPT_HELP, add_panorama_options
+    from gijax.cli.options import (CKPT_HELP, RawHelpFormatter, add_candidates_option,
+                                   add_panorama_options, add_rig_option)
     from gijax.export.precision import DEFAULT_CALIBRATION_SCENES, PRECISIONS
 
     p = subparsers.add_parser("export", help=HELP, description=DESCRIPTION,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+                              formatter_class=RawHelpFormatter)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--ckpt", metavar="PATH|NAME", help=CKPT_HELP)
     src.add_argument("--preset", metavar="NAME|FILE", help="model preset (or a JSON file of "
                      "ModelConfig fields) with random, UNTRAINED weights (for testing the "
                      "deployment path only)")
-    p.add_argument("--rig", required=True, metavar="NAME|FILE",
-                   help="built-in rig name or a rig / Kalibr / basalt calibration file")
+    add_rig_option(p, required=True)
     p.add_argument("--out", required=True, metavar="FILE", help="output .onnx file")
     p.add_argument("--opset", type=int, default=17, help="ONNX opset (default 17: TensorRT 8.5 "
                    "and later)")
@@ -41,17 +38,17 @@ def register(subparsers) -> None:
     p.add_argument("--dynamic-batch", action="store_true", help="symbolic batch axis")
     p.add_argument("--rig-as-input", action="store_true",
                    help="intrinsics, poses, reference and candidates as graph inputs")
-    p.add_argument("--candidates", default="train", metavar=METAVAR,
-                   help="candidates baked in / used for validation: " + CANDIDATES_HELP)
+    add_candidates_option(p, "train", "'train'", what="candidates baked in / used for "
+                                                       "validation")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
-                   help="fp32 (default), or fp16: feature extractor, cost-volume convolution "
+                   help="fp32, or fp16: feature extractor, cost-volume convolution "
                    "and U-Net in float16, sampling, softmax and regression kept float32 by "
                    "casts; int8: those convolutions quantised (QDQ, per-channel weights), the "
                    "rest float32; inputs and outputs stay float32 (docs/deploy.md)")
     p.add_argument("--calibration", type=int, default=DEFAULT_CALIBRATION_SCENES,
                    metavar="SCENES", help="int8: rendered scenes of the rig the activation "
-                   f"ranges are calibrated on (default {DEFAULT_CALIBRATION_SCENES})")
+                   "ranges are calibrated on")
     p.add_argument("--no-validate", action="store_true",
                    help="skip the onnxruntime-vs-JAX comparison on a rendered sample")
     add_panorama_options(p, "the model's output size")
@@ -61,7 +58,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.export.onnx_export import export_onnx, validate_export
     from gijax.export.precision import VALIDATE_ATOL
     from gijax.export.trt_compat import check_model
@@ -82,9 +79,7 @@ def run(args) -> int:
     note = coverage_note(config, pano)
     if note:
         print(note)
-    candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
-                                         config.d_min, config.d_max, train=train_cand,
-                                         kind=config.candidates)
+    candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)
     print(f"exporting {label}; rig {args.rig}; candidates: {how} "
           f"{np.round(candidates, 3).tolist()} m")
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,

@@ -9,7 +9,7 @@ from gijax.cli.options import field_value
 HELP = "turn the authors' released checkpoint into a gijax bundle (--ckpt for predict/eval/export)"
 DESCRIPTION = """\
 Read a state dict of the authors' released network (castacks/mvs_gi) and write an inference
-bundle that 'gijax predict', 'gijax eval' and 'gijax export' accept with --ckpt.
+bundle that 'gijax predict --ckpt DIR' accepts (and so do eval and export).
 
 SRC is a Lightning .ckpt, a PyTorch .pth / .pt (both need torch: pip install 'gijax[torch]')
 or an .npz holding the state dict's arrays under the same names (or under 'sd/NAME').

@@ -12,9 +12,9 @@ def register(subparsers) -> None:
         "models", help=HELP,
         description=(
             "List the inference bundles shipped inside gijax (gijax/assets): name, preset, "
-            "parameter count and what each was trained on (from its PROVENANCE.json). Every "
-            "--ckpt (predict, eval, export, demo) accepts such a name as well as a path; a path "
-            "that exists wins."))
+            "parameter count and what each was trained on (from its PROVENANCE.json). The model "
+            "option of predict, eval, export and demo ('gijax predict --ckpt NAME') accepts "
+            "such a name as well as a path; a path that exists wins."))
     p.add_argument("--json", action="store_true", help="print one JSON list instead of text")
     p.set_defaults(func=run)
 

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
-import textwrap
-
 import numpy as np
 
 HELP = "estimate the distance panorama of one set of fisheye images"
@@ -36,23 +33,18 @@ the outputs are then labelled UNTRAINED).
 RS-E32, RS-G32 or RS-E32-AD (the last with the paper's 1x1 absolute-difference cost). Its
 default candidates are the preset's own list (RS-E32: 32 candidates even in inverse distance,
 0.5-100 m; the G presets derive theirs from the rig), printed at run time.
-
-{candidates}
 """
 
 
 def register(subparsers) -> None:
-    from gijax.candidates.spec import HELP as CANDIDATES_HELP, METAVAR
-    from gijax.cli.options import CKPT_HELP, add_panorama_options
+    from gijax.cli.options import (CKPT_HELP, RawHelpFormatter, add_candidates_option,
+                                   add_method_option, add_panorama_options, add_rig_option,
+                                   add_rtss_preset_option)
 
-    description = DESCRIPTION.format(
-        candidates=textwrap.fill("Candidates (--candidates): " + CANDIDATES_HELP, 95))
-    p = subparsers.add_parser("predict", help=HELP, description=description,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--method", choices=("learned", "rtss"), default="learned",
-                   help="learned network (default) or the classical RTSS baseline")
-    p.add_argument("--rtss-preset", default="RS-E32", metavar="NAME",
-                   help="RTSS configuration for --method rtss (default RS-E32)")
+    p = subparsers.add_parser("predict", help=HELP, description=DESCRIPTION,
+                              formatter_class=RawHelpFormatter)
+    add_method_option(p)
+    add_rtss_preset_option(p)
     p.add_argument("--backend", choices=("jax", "onnx"), default="jax",
                    help="run the learned model in JAX (default) or an exported ONNX file with "
                         "onnxruntime (CPU, or CUDA where available)")
@@ -61,24 +53,20 @@ def register(subparsers) -> None:
                    help="onnxruntime memory profile for --backend onnx: 'lean' skips constant "
                         "folding (about 40%% less memory, 12%% more time at paper size), 'low' "
                         "keeps the least resident memory (also no arena and glibc's mmap "
-                        "threshold fixed; about 4x less memory, 1.7x the time) (default: "
-                        "'default')")
+                        "threshold fixed; about 4x less memory, 1.7x the time); 'default' "
+                        "keeps onnxruntime's own settings")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--ckpt", metavar="PATH|NAME", help=CKPT_HELP)
     src.add_argument("--preset", metavar="NAME|FILE", help="model preset (e.g. G16VV-cpu) or a "
                      "JSON file of ModelConfig fields, with random, UNTRAINED weights")
-    p.add_argument("--rig", required=True, metavar="NAME|FILE",
-                   help="built-in rig name (paper-train, paper-test1..3) or a rig / Kalibr / "
-                        "basalt calibration file")
+    add_rig_option(p, required=True)
     p.add_argument("--images", required=True, nargs="+", metavar="IMAGE",
                    help="one fisheye image per camera, in the rig's camera order")
     p.add_argument("--masks", nargs="+", metavar="MASK",
                    help="optional validity masks per camera (non-zero = valid); default: the "
                         "rig's own masks")
-    p.add_argument("--candidates", default=None, metavar=METAVAR,
-                   help="distance candidates (see above); default: 'train' (the model's "
-                        "training list) for the learned model, the preset's own list for "
-                        "--method rtss")
+    add_candidates_option(p, None, "'train' for the learned model, the RTSS preset's own "
+                                   "list for --method rtss")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     add_panorama_options(p, "160x640 (RTSS) or the model's output size")
@@ -86,7 +74,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from gijax.data.images import read_image
+    from gijax.data.images import read_images
     from gijax.io.masks import read_mask, warn_if_unmasked
     from gijax.io.paths import check_output_dir
     from gijax.io.rigfile import load_rig
@@ -99,10 +87,7 @@ def run(args) -> int:
                          f"{len(args.images)} images were given")
     if args.masks is not None and len(args.masks) != len(args.images):
         raise ValueError(f"{len(args.masks)} masks given for {len(args.images)} images")
-    images = [read_image(p) for p in args.images]
-    shapes = {im.shape for im in images}
-    if len(shapes) != 1:
-        raise ValueError(f"all images must have the same size; found {sorted(shapes)}")
+    images = read_images(args.images)
     masks = None
     if args.masks is not None:
         masks = np.stack([read_mask(p) for p in args.masks])
@@ -113,19 +98,19 @@ def run(args) -> int:
         if given:
             raise ValueError(f"--method rtss runs the classical baseline, which uses no model; "
                              f"drop {' and '.join(given)} (or use --method learned)")
-        return _run_rtss(args, rig, np.stack(images), masks)
+        return _run_rtss(args, rig, images, masks)
     if args.candidates is None:
         args.candidates = "train"
     if args.backend == "onnx":
-        return _run_onnx(args, rig, np.stack(images), masks)
+        return _run_onnx(args, rig, images, masks)
     if not (args.ckpt or args.preset):
         raise ValueError("the learned method needs --ckpt RUN (or --preset NAME for an untrained "
                          "model)")
-    return _run_learned(args, rig, np.stack(images), masks)
+    return _run_learned(args, rig, images, masks)
 
 
 def _run_learned(args, rig, images: np.ndarray, masks) -> int:
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.cli.options import panorama_from_args
     from gijax.model import model_panorama
     from gijax.predict import LearnedPredictor
@@ -134,9 +119,7 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
     hemi = model_panorama(config, "hemisphere").shape
     rig, pano = panorama_from_args(args, rig, hemi)
-    candidates, how = resolve_candidates(args.candidates, rig, config.num_candidates,
-                                         config.d_min, config.d_max, train=train_cand,
-                                         kind=config.candidates)
+    candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)
     result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args.out, title)
@@ -178,7 +161,7 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
 
 
 def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.export.ort_predict import OnnxPredictor
     from gijax.predict import point_colours
 
@@ -195,8 +178,7 @@ def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
         from gijax.store.configs import model_config_from_dict
 
         config = model_config_from_dict(pred.info.config)
-        candidates = resolve_candidates(args.candidates, rig, config.num_candidates,
-                                        config.d_min, config.d_max)[0]
+        candidates = model_candidates(args.candidates, rig, config)[0]
     rig = pred.info.oriented_rig(rig)
     result = pred.predict(rig, images, masks, candidates, log=print)
     small = pred.info.scaled_rig(rig)

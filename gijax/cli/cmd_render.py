@@ -3,39 +3,39 @@
 
 from __future__ import annotations
 
-import argparse
-
-from gijax.cli.options import add_panorama_options
+from gijax.cli.options import (HelpFormatter, add_panorama_options, add_rig_option, hw_type,
+                               wh_type)
 from gijax.geometry.rig import Rig
 from gijax.io.rigfile import load_rig
 
 STYLES = ("mixed", "indoor", "outdoor")
 
 
-def _pair(text: str, what: str) -> tuple[int, int]:
-    try:
-        a, b = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{what} must look like 640x160; found {text!r}") from None
-    if a < 1 or b < 1:
-        raise argparse.ArgumentTypeError(f"{what} must be positive; found {text!r}")
-    return a, b
+def _size_option(args) -> str:
+    return "--image-size" if args.image_size is not None else "--size"
 
 
 def _scale_for(rig: Rig, args) -> float:
-    """The image scale factor from --scale or --size (which must keep every camera's aspect)."""
-    if args.size is None:
+    """The image scale factor from --scale or --image-size / --size (which must keep every
+    camera's aspect)."""
+    size = args.image_size if args.image_size is not None else args.size
+    if size is None:
         return float(args.scale)
-    w, h = args.size
+    h, w = size
+    given = f"{_size_option(args)} " + (f"{h}x{w}" if args.image_size is not None else f"{w}x{h}")
     factors = set()
     for name, cam in zip(rig.names, rig.cameras):
         fw, fh = w / cam.width, h / cam.height
         if abs(fw - fh) > 1e-9:
-            raise ValueError(f"--size {w}x{h} changes the aspect of camera {name!r} "
-                             f"({cam.width}x{cam.height}); use --scale")
+            swapped = abs(h / cam.width - w / cam.height) < 1e-9
+            hint = (f"; {_size_option(args)} reads "
+                    f"{'HxW (rows x columns)' if args.image_size is not None else 'WxH'}, "
+                    f"the other order keeps it" if swapped else "; use --scale")
+            raise ValueError(f"{given} changes the aspect of camera {name!r} "
+                             f"({cam.height}x{cam.width} HxW){hint}")
         factors.add(fw)
     if len(factors) != 1:
-        raise ValueError(f"--size {w}x{h} needs every camera to have the same size; use --scale")
+        raise ValueError(f"{given} needs every camera to have the same size; use --scale")
     return factors.pop()
 
 
@@ -46,6 +46,8 @@ def run(args) -> int:
         raise ValueError(f"--samples must be >= 1; found {args.samples}")
     from gijax.cli.options import panorama_from_args
 
+    if args.pano is not None and args.panorama_size is not None:
+        raise ValueError("--pano (WxH) and --panorama-size (HxW) give the same size; drop --pano")
     base, pano = panorama_from_args(args, load_rig(args.rig), (160, 640), size=args.pano)
     if args.lens != "keep":
         from gijax.data.lens_draw import LensDraw, lens_variant_rig
@@ -77,14 +79,12 @@ def register(subparsers) -> None:
             "crash-safe; re-running the same command resumes after the last complete sample "
             "and yields the same data as an uninterrupted run. The manifest records the "
             "requested count before any sample, so readers know an interrupted dataset is "
-            "incomplete ('gijax data check' reports it; train and eval refuse it without "
-            "--allow-partial); re-running with --samples equal to what it holds accepts it as "
-            "it is. One writer at a time: a second command writing the same folder fails "
+            "incomplete ('gijax data check' reports it; train and eval refuse it unless told "
+            "otherwise, 'gijax train --allow-partial'); re-running with --samples equal to "
+            "what it holds accepts it as it is. One writer at a time: a second command writing the same folder fails "
             "naming the first one's PID."),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--rig", required=True,
-                   help="built-in rig name (paper-train, paper-test1, paper-test2, paper-test3) "
-                        "or a rig file (gijax YAML, Kalibr camchain.yaml, basalt JSON)")
+        formatter_class=HelpFormatter)
+    add_rig_option(p, required=True)
     p.add_argument("--samples", type=int, required=True, help="total number of samples")
     p.add_argument("--out", required=True, help="dataset folder (created, or resumed)")
     p.add_argument("--seed", type=int, default=0, help="dataset seed; sample i uses a seed "
@@ -92,14 +92,14 @@ def register(subparsers) -> None:
     size = p.add_mutually_exclusive_group()
     size.add_argument("--scale", type=float, default=1.0,
                       help="scale every camera image by this factor (0.25 for the -cpu presets)")
-    size.add_argument("--size", type=lambda s: _pair(s, "--size"), default=None,
-                      metavar="WxH", help="every camera's image size (keeps the aspect)")
-    p.add_argument("--pano", type=lambda s: tuple(reversed(_pair(s, "--pano"))),
-                   default=None, metavar="WxH",
-                   help="ground-truth panorama size, width x height (default 640x160 for the "
-                        "hemisphere, the paper's, and 640x320 for the sphere; 128x32 matches "
-                        "the -cpu presets' output)")
-    add_panorama_options(p, "640x160", size=False)
+    size.add_argument("--image-size", type=hw_type("--image-size"), default=None,
+                      metavar="HxW", help="every camera's image size, rows x columns (must keep "
+                                          "the aspect)")
+    size.add_argument("--size", type=wh_type("--size", "--image-size"), default=None,
+                      metavar="WxH", help="older form of --image-size, width x height")
+    add_panorama_options(p, "160x640")
+    p.add_argument("--pano", type=wh_type("--pano", "--panorama-size"), default=None,
+                   metavar="WxH", help="older form of --panorama-size, width x height")
     p.add_argument("--style", choices=STYLES, default="mixed",
                    help="scene style; mixed picks indoor or outdoor per sample")
     p.add_argument("--lens", default="keep", choices=["keep", "random", "equidistant", "kb", "ds"],

@@ -3,9 +3,8 @@ built-in layouts, and refine a calibration from unlabeled images."""
 
 from __future__ import annotations
 
-import argparse
 
-from gijax.cli.options import add_panorama_options
+from gijax.cli.options import HelpFormatter, add_panorama_options, rig_help
 
 
 def _oriented(args, rig):
@@ -159,9 +158,8 @@ def register(subparsers) -> None:
                     "limit and the cone the image holds completely), the pairwise baselines, "
                     "the reference point and the occluder, and a note when cameras of a rig "
                     "file have no mask; optionally plot a top and a side view.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    show.add_argument("rig", metavar="NAME|FILE",
-                      help="a built-in name (see 'gijax rig list') or a rig/calibration file")
+        formatter_class=HelpFormatter)
+    show.add_argument("rig", metavar="NAME|FILE", help=rig_help())
     show.add_argument("--plot", metavar="OUT.png", help="write a top and side view PNG")
     show.add_argument("--save", metavar="OUT.yaml",
                       help="also write the rig as a gijax YAML rig file (converts calibrations)")
@@ -180,7 +178,7 @@ def register(subparsers) -> None:
                     "(a PNG the size of that camera's image, nonzero = sees the world, zero = "
                     "the rig's own body), and write a gijax YAML rig file with the masks "
                     "beside it. Prints what was imported and the path written.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     imp.add_argument("calibration", metavar="CALIB",
                      help="camchain.yaml, basalt calibration JSON or gijax rig file")
     imp.add_argument("--masks", nargs="+", metavar="MASK.png",
@@ -211,9 +209,8 @@ def register(subparsers) -> None:
                     "<name>_mask.png beside each), or a gijax dataset folder (one frame per "
                     "sample). Prints how far each camera moved and the photometric loss "
                     "before and after.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ref.add_argument("rig", metavar="RIG",
-                     help="the rig to refine: a built-in name, gijax rig file or calibration")
+        formatter_class=HelpFormatter)
+    ref.add_argument("rig", metavar="NAME|FILE", help="the rig to refine: " + rig_help())
     ref.add_argument("--frames", nargs="+", required=True, metavar="DIR",
                      help="frame folders (one image per camera, named after the rig's "
                           "cameras) or gijax dataset folders")

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import argparse
-
-from gijax.cli.options import field_value
+from gijax.cli.options import (HelpFormatter, add_candidates_option, add_rig_option,
+                               field_value)
 
 
 def register(subparsers) -> None:
@@ -22,7 +21,7 @@ def register(subparsers) -> None:
             "on it fails naming the first one's PID. Batches are split over all devices (data "
             "parallel); for several hosts start one process per host with --coordinator, "
             "--num-processes and --process-id."),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument("--preset", required=True, help="network preset, e.g. G16VV-cpu or G16VV")
     p.add_argument("--data", required=True, nargs="+", metavar="DIR",
                    help="training dataset folder, gijax's layout or the release's (partition "
@@ -35,12 +34,16 @@ def register(subparsers) -> None:
     p.add_argument("--batch", type=int, default=2, help="global batch size (all devices)")
     p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate")
     p.add_argument("--schedule", default="constant",
-                   choices=["constant", "cosine", "warmup_cosine", "step"])
-    p.add_argument("--warmup-steps", type=int, default=0)
+                   choices=["constant", "cosine", "warmup_cosine", "step"],
+                   help="learning-rate schedule over --steps: constant, cosine decay, linear "
+                        "warm-up from zero then cosine decay, or staircase exponential decay")
+    p.add_argument("--warmup-steps", type=int, default=0,
+                   help="steps of linear learning-rate warm-up (--schedule warmup_cosine)")
     p.add_argument("--clip-norm", type=float, default=None, help="clip the global gradient norm")
     p.add_argument("--grad-accum", type=int, default=1, help="micro-batches per step")
     p.add_argument("--bf16", action="store_true", help="bfloat16 compute (GPUs)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the model initialisation and the data order")
     p.add_argument("--val-every", type=int, default=500, help="steps between validations")
     p.add_argument("--val-batches", type=int, default=0, help="limit validation batches (0: all)")
     p.add_argument("--ckpt-every", type=int, default=100, help="steps between checkpoints")
@@ -55,9 +58,10 @@ def register(subparsers) -> None:
                         "of up to DEG degrees, new each step (images, labels and validation "
                         "keep the true rig): tolerance to calibration error (docs/data.md)")
     p.add_argument("--workers", type=int, default=2, help="data loader threads")
-    p.add_argument("--candidates", default=None,
-                   help="JSON file with a list of distances (m); default: the preset's kind "
-                        "computed for the training rig")
+    add_candidates_option(p, None, "the preset's own kind ('train': EV, or GI with the "
+                                   "paper's baseline); keywords are resolved once for the "
+                                   "training rig (--rig, else the first dataset's)",
+                          what="the list to train with")
     p.add_argument("--learn-candidates", action="store_true",
                    help="train the candidate list with the network (its ends kept; its own "
                         "Adam at --candidates-lr); the learned list is logged at each "
@@ -76,10 +80,12 @@ def register(subparsers) -> None:
                         "data position, log; about 12 MB for a -cpu preset), small enough to "
                         "commit; a run whose folder is missing or older resumes from it "
                         "(docs/training.md, Training in pieces)")
-    p.add_argument("--rig", default=None, help="rig name or file (default: the dataset's rig)")
+    add_rig_option(p, default_help="the dataset's rig; one --data folder only")
     p.add_argument("--coordinator", default=None, help="host:port of process 0 (multi-host)")
-    p.add_argument("--num-processes", type=int, default=None)
-    p.add_argument("--process-id", type=int, default=None)
+    p.add_argument("--num-processes", type=int, default=None,
+                   help="number of processes of a multi-host run (with --coordinator)")
+    p.add_argument("--process-id", type=int, default=None,
+                   help="this process's index, 0 .. --num-processes - 1 (multi-host)")
     p.add_argument("--override", action="append", type=field_value, default=[],
                    metavar="FIELD=VALUE",
                    help="replace a network configuration field of the preset (JSON value), "
@@ -94,6 +100,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import dataclasses
     import shlex
 
     from gijax.bench.machine import invocation
@@ -106,7 +113,6 @@ def run(args) -> int:
     args.interrupted_keeps = (f"{args.out} keeps the checkpoints written so far (every "
                               f"--ckpt-every steps); the same command resumes from the last")
     init_distributed(args.coordinator, args.num_processes, args.process_id)
-    from gijax.candidates.spec import read_candidate_file
     from gijax.train.config import TrainConfig
     from gijax.train.entry import train
 
@@ -119,8 +125,8 @@ def run(args) -> int:
         workers=args.workers, augment=args.augment,
         calibration_error_deg=args.calibration_error,
         learn_candidates=args.learn_candidates, candidates_lr=args.candidates_lr,
-        init_from=args.init_from, pack=args.pack,
-        candidates=read_candidate_file(args.candidates).tolist() if args.candidates else None)
+        init_from=args.init_from, pack=args.pack)
+    cfg = dataclasses.replace(cfg, candidates=_training_list(args, cfg))
     data = args.data[0] if len(args.data) == 1 else args.data
     result = train(cfg, data, args.out, val=args.val, rig=args.rig,
                    allow_partial=args.allow_partial, check_data=not args.no_data_check,
@@ -133,3 +139,31 @@ def run(args) -> int:
         print(f"validation at step {v['step']}: MAE {v['mae']:.4f}  RMSE {v['rmse']:.4f}  "
               f"SSIM {v['ssim']:.4f} (inverse distance, 1/m)")
     return 0
+
+
+def _training_list(args, cfg):
+    """--candidates as a list of metres (None: the preset's own kind, decided by the trainer).
+    A keyword is resolved once, here, for the training rig (--rig, else the first dataset's,
+    in the dataset's panorama frame as the trainer uses it)."""
+    from gijax.candidates.spec import KEYWORDS, TRAIN, model_candidates, resolve_candidates
+
+    if args.candidates in (None, TRAIN):
+        return None
+    mc = cfg.model_config()
+    if args.candidates not in KEYWORDS:
+        # A file of any length here: the trainer reports a count that does not fit the preset.
+        return resolve_candidates(args.candidates, None, mc.num_candidates,
+                                  any_count=True)[0].tolist()
+    rig = None
+    if args.candidates in ("spacing", "rig"):      # the recomputed lists that need the rig
+        from gijax.train.sources import open_dataset
+
+        reader = open_dataset(args.data[0], "training", args.allow_partial)
+        rig = reader.rig
+        if args.rig:
+            from gijax.io.rigfile import load_rig
+
+            rig = load_rig(args.rig).replace(panorama_rotation=rig.panorama_rotation)
+    cand, how = model_candidates(args.candidates, rig, mc)
+    print(f"training candidates: {how}; {len(cand)} from {cand[0]:.3f} to {cand[-1]:.3f} m")
+    return cand.tolist()

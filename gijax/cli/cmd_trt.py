@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 HELP = "build (gijax trt build) and run (gijax trt run) TensorRT engines"
@@ -17,24 +16,28 @@ camera and time it. Engines are tied to the TensorRT version and the GPU: build 
 
 
 def register(subparsers) -> None:
+    from gijax.cli.options import RawHelpFormatter, add_rig_option
+
     p = subparsers.add_parser("trt", help=HELP, description=DESCRIPTION,
-                              formatter_class=argparse.RawDescriptionHelpFormatter)
+                              formatter_class=RawHelpFormatter)
     sub = p.add_subparsers(dest="trt_command", metavar="build|run")
     b = sub.add_parser("build", help="ONNX -> TensorRT engine")
-    b.add_argument("onnx", metavar="MODEL.onnx")
-    b.add_argument("--out", required=True, metavar="MODEL.plan")
+    b.add_argument("onnx", metavar="MODEL.onnx", help="exported file ('gijax export')")
+    b.add_argument("--out", required=True, metavar="MODEL.plan",
+                   help="engine file to write (a .plan.json build record beside it)")
     b.add_argument("--fp16", action="store_true", help="allow fp16 kernels (TensorRT <= 10)")
     b.add_argument("--workspace", type=int, metavar="MB", help="builder workspace limit, MiB")
     b.add_argument("--max-batch", type=int, default=1,
                    help="largest batch of a dynamic-batch file's optimisation profile")
     b.set_defaults(func=run_build)
     r = sub.add_parser("run", help="run and time an engine on one set of images")
-    r.add_argument("plan", metavar="MODEL.plan")
+    r.add_argument("plan", metavar="MODEL.plan", help="engine file ('gijax trt build')")
     r.add_argument("--onnx", metavar="MODEL.onnx", help="the exported file (for its metadata; "
                    "default: the file recorded at build time)")
-    r.add_argument("--rig", required=True, metavar="NAME|FILE")
-    r.add_argument("--images", required=True, nargs="+", metavar="IMAGE")
-    r.add_argument("--repeats", type=int, default=20)
+    add_rig_option(r, required=True)
+    r.add_argument("--images", required=True, nargs="+", metavar="IMAGE",
+                   help="one fisheye image per camera, in the rig's camera order")
+    r.add_argument("--repeats", type=int, default=20, help="timed runs of the engine")
     r.add_argument("--out", metavar="FILE.npy", help="write the distance panorama (metres)")
     r.set_defaults(func=run_engine_cmd)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
@@ -74,13 +77,13 @@ def run_engine_cmd(args) -> int:
             onnx_path = json.loads(record.read_text()).get("onnx")
         if not onnx_path:
             raise ValueError("pass --onnx MODEL.onnx (the engine has no build record)")
-        from gijax.data.images import read_image
+        from gijax.data.images import read_images
         from gijax.export.ort_predict import ExportInfo
         from gijax.io.rigfile import load_rig
 
         info = ExportInfo(onnx_path)
         rig = load_rig(args.rig)
-        images = np.stack([read_image(p) for p in args.images])
+        images = read_images(args.images)
         feed, _ = info.feed(rig, images)
         outputs, times = run_engine(engine, feed, repeats=args.repeats)
     except TensorRTMissing as exc:

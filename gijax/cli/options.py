@@ -78,3 +78,124 @@ def panorama_from_args(args, rig, hemisphere_hw, log=print, size=None):
     if log is not None:
         log(describe_choice(choice, pano))
     return rig, pano
+
+
+# ------------------------------------------------------------------------- help formatting
+
+class _DefaultsOnce(argparse.HelpFormatter):
+    """Appends ``(default: X)`` to an option's help once: not when the help already states its
+    default, not for a required option (it has none), not for a flag or an unset value (None)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("default" in text.lower() or action.required or action.default is None
+                or action.default is argparse.SUPPRESS or isinstance(action.default, bool)
+                or not action.option_strings or action.default == []):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+class HelpFormatter(_DefaultsOnce):
+    """Every command's formatter: the description wrapped, each option's default once."""
+
+
+class RawHelpFormatter(_DefaultsOnce, argparse.RawDescriptionHelpFormatter):
+    """For commands whose description is laid out by hand (lists, examples)."""
+
+
+# ------------------------------------------------------------------------------- sizes
+
+def parse_hw(text: str, what: str = "size") -> tuple[int, int]:
+    """``'HxW'`` (rows x columns) -> ``(H, W)``; ArgumentTypeError naming ``what`` and the
+    order expected (the type of every size option of the command line)."""
+    try:
+        return parse_size(text, what)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def hw_type(what: str):
+    """An argparse ``type`` reading HxW for option ``what``."""
+    return lambda text: parse_hw(text, what)
+
+
+def wh_type(what: str, new: str):
+    """The type of a kept width-first option (``what``, superseded by ``new``): ``'WxH'`` ->
+    ``(H, W)``, so that every size leaves the parser rows first."""
+
+    def parse(text: str) -> tuple[int, int]:
+        try:
+            w, h = parse_size(text, what)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{what} {text!r}: expected WxH, width x height (e.g. 640x160); {new} takes "
+                f"HxW, rows x columns") from None
+        return h, w
+
+    return parse
+
+
+# --------------------------------------------------------------------------------- rigs
+
+def builtin_rig_names() -> list[str]:
+    """The built-in rig layouts' names, from the library (for help texts)."""
+    from gijax.geometry.layouts import BUILTIN_LAYOUTS
+
+    return sorted(BUILTIN_LAYOUTS)
+
+
+def rig_help(default: str | None = None) -> str:
+    """The one description of a rig argument; ``default`` says what a missing --rig means."""
+    text = (f"built-in rig name ({', '.join(builtin_rig_names())}; see 'gijax rig list') or a "
+            f"rig file: gijax YAML, Kalibr / TartanCalib camchain.yaml or basalt calibration "
+            f"JSON")
+    return f"{text} (default: {default})" if default else text
+
+
+def add_rig_option(parser, required: bool = False, default: str | None = None,
+                   default_help: str | None = None) -> None:
+    """``--rig NAME|FILE``: ``required``, or optional with ``default`` (a built-in name) or,
+    when None, what ``default_help`` says the command uses instead (e.g. the dataset's rig)."""
+    parser.add_argument("--rig", required=required, default=default, metavar="NAME|FILE",
+                        help=rig_help(None if required else (default or default_help)))
+
+
+# --------------------------------------------------------------------------- candidates
+
+def add_candidates_option(parser, default: str | None, default_help: str,
+                          flag: str = "--candidates", what: str = "distance candidates") -> None:
+    """The one ``--candidates`` grammar (:mod:`gijax.candidates.spec`); ``default_help`` says
+    what a missing spec means for this command."""
+    from gijax.candidates.spec import HELP, METAVAR
+
+    parser.add_argument(flag, default=default, metavar=METAVAR,
+                        help=f"{what}: {HELP}. Default: {default_help}")
+
+
+# ------------------------------------------------------------------------------- methods
+
+METHODS = ("learned", "rtss")
+METHOD_ALIASES = {"net": "learned"}
+
+
+def _method(text: str) -> str:
+    return METHOD_ALIASES.get(text, text)
+
+
+def add_method_option(parser, aliases: bool = False) -> None:
+    """``--method learned|rtss``; with ``aliases`` the older spelling ``net`` is accepted for
+    ``learned`` (command lines written for earlier releases)."""
+    alias = " ('net' is accepted for 'learned')" if aliases else ""
+    parser.add_argument("--method", type=_method if aliases else str, choices=METHODS,
+                        default="learned",
+                        help=f"'learned' (the trained network of --ckpt; default) or 'rtss' "
+                             f"(the classical sphere-sweep baseline, no model){alias}")
+
+
+def add_rtss_preset_option(parser) -> None:
+    """``--rtss-preset NAME`` with the presets listed from the library."""
+    from gijax.baseline.rtss import RTSS_PRESETS
+
+    parser.add_argument("--rtss-preset", default="RS-E32", metavar="NAME",
+                        help=f"RTSS configuration for --method rtss ({', '.join(RTSS_PRESETS)}; "
+                             f"default RS-E32)")

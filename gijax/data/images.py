@@ -41,6 +41,18 @@ def read_image(path: str | os.PathLike, grey: bool = False) -> np.ndarray:
     return np.ascontiguousarray(img[..., ::-1])  # OpenCV reads BGR
 
 
+def read_images(paths) -> np.ndarray:
+    """One image per camera (``paths`` in camera order) stacked as uint8 (Ncam, h, w, 3); a
+    ValueError names the first file whose size differs from the first one's."""
+    images = [read_image(p) for p in paths]
+    first = images[0].shape[:2]
+    for path, im in zip(paths, images):
+        if im.shape[:2] != first:
+            raise ValueError(f"{path}: image is {_size_text(im.shape[:2])} but {paths[0]} is "
+                             f"{_size_text(first)}; give every camera's image at one size")
+    return np.stack(images)
+
+
 def _size_text(hw) -> str:
     return f"{hw[0]} x {hw[1]}"
 
