@@ -67,4 +67,7 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
+    from gijax.host_memory import use_huge_pages
+
+    use_huge_pages()
     main()

@@ -134,4 +134,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    from gijax.host_memory import use_huge_pages
+
+    use_huge_pages()
     raise SystemExit(main())

@@ -69,4 +69,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from gijax.host_memory import use_huge_pages
+
+    use_huge_pages()
     main()

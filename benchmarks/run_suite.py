@@ -24,4 +24,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    from gijax.host_memory import use_huge_pages
+
+    use_huge_pages()
     sys.exit(main())

@@ -168,4 +168,7 @@ def sample_count(rows: list) -> int:
 
 
 if __name__ == "__main__":
+    from gijax.host_memory import use_huge_pages
+
+    use_huge_pages()
     sys.exit(main())

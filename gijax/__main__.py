@@ -1,5 +1,3 @@
-import sys
+from gijax.cli import run
 
-from gijax.cli import main
-
-sys.exit(main())
+run()

@@ -76,5 +76,14 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
-if __name__ == "__main__":
+def run() -> None:
+    """The ``gijax`` program: :func:`main` on this process's arguments, in a process whose
+    allocator asks for transparent huge pages (:func:`gijax.host_memory.use_huge_pages`)."""
+    from gijax.host_memory import use_huge_pages
+
+    use_huge_pages()
     sys.exit(main())
+
+
+if __name__ == "__main__":
+    run()
