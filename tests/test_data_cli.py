@@ -100,3 +100,45 @@ def test_render_refuses_other_settings_and_bad_sizes(rig_file, tmp_path, monkeyp
     assert "changes the aspect of camera 'cam0'" in capsys.readouterr().err
     assert main(_args("no-such-rig", tmp_path / "f", 1)) == 1
     assert "not a built-in rig name" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra, message", [
+    (("--scale", "0"), "--scale must be a positive number; found 0.0"),
+    (("--scale", "-1"), "--scale must be a positive number; found -1.0"),
+    (("--scale", "nan"), "--scale must be a positive number; found nan"),
+    (("--scale", "2000"), "camera 'cam0': 64000x64000 (width x height) has a side beyond the "
+                          "32768-pixel bound"),
+    (("--pano", "100000x100000"), "the panorama: 100000x100000 (width x height) has a side "
+                                  "beyond the 32768-pixel bound"),
+])
+def test_render_refuses_sizes_it_cannot_render_before_making_the_folder(
+        rig_file, tmp_path, capsys, monkeypatch, extra, message):
+    monkeypatch.setattr(gijax.render, "render_sample", fake_render)
+    out = tmp_path / "d"
+    args = _args(rig_file, out, 1)
+    if extra[0] == "--pano":
+        args[args.index("--pano") + 1] = extra[1]
+    else:
+        args += list(extra)
+    assert main(args) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    # Nothing is left behind that the corrected command would trip on.
+    assert not out.exists()
+    assert main(_args(rig_file, out, 1)) == 0
+
+
+def test_render_refuses_what_does_not_fit_in_memory(rig_file, tmp_path, capsys, monkeypatch):
+    from gijax.io import bounds
+
+    monkeypatch.setattr(gijax.render, "render_sample", fake_render)
+    monkeypatch.setattr(bounds, "available_memory", lambda: 2**30)
+    # Three 32 x 32 cameras at scale 32 are 1024 x 1024: 3 M pixels x 256 B = 0.75 GiB, plus a
+    # 2048 x 1024 panorama x 128 B = 0.25 GiB: 1 GiB, more than the 0.5 GiB half.
+    args = _args(rig_file, tmp_path / "d", 1, "--scale", "32")
+    args[args.index("--pano") + 1] = "2048x1024"
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "cameras 1024x1024, 1024x1024, 1024x1024 and a 2048x1024 panorama (width x height) " \
+           "need about 1.0 GiB, more than half of the 1.0 GiB" in err, err
+    assert not (tmp_path / "d").exists()

@@ -373,6 +373,14 @@ def test_cli_export_preset_validates_and_reports(tmp_path, capsys):
     err = [ln for ln in captured.err.splitlines() if ln.strip()]
     assert code != 0 and len(err) == 1 and f"--out {tmp_path} is a folder" in err[0], err
     assert "exporting" not in captured.out
+    # A panorama the export could not trace (its sides, or memory for --batch samples) is
+    # refused in one line before the export.
+    code = main(["export", "--preset", str(cfg_file), "--rig", "paper-train", "--out",
+                 str(tmp_path / "big.onnx"), "--panorama-size", "40000x160000"])
+    captured = capsys.readouterr()
+    assert code == 1 and "--panorama-size 40000x160000 (rows x columns) has a side beyond" \
+        in captured.err and "exporting" not in captured.out
+    assert not (tmp_path / "big.onnx").exists()
 
 
 def test_predict_cli_onnx_backend_matches_the_predictor(setup, tmp_path):

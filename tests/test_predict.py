@@ -142,7 +142,7 @@ def test_written_files(setup, tmp_path):
         np.uint8))
 
 
-def test_cli(tmp_path, capsys):
+def test_cli(tmp_path, capsys, monkeypatch):
     files = []
     for i, c in enumerate(RGB):
         p = tmp_path / f"cam{i}.png"
@@ -183,6 +183,26 @@ def test_cli(tmp_path, capsys):
     rc = main(["predict", "--preset", "G99", "--rig", "paper-train", "--images", *files,
                "--out", str(out)])
     assert rc == 1 and "unknown model preset" in capsys.readouterr().err
+    # Panorama sizes are bounded before any work: by side, then by memory (8 candidates x
+    # 160 B a pixel; 1024 x 4096 needs 5 GiB), for the learned model and the baseline alike.
+    fresh = tmp_path / "fresh"
+    rc = main(["predict", "--preset", str(cfg), "--rig", "paper-train", "--images", *files,
+               "--out", str(fresh), "--panorama-size", "100000x400000"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and err[0].endswith(
+        "--panorama-size 100000x400000 (rows x columns) has a side beyond the 32768-pixel "
+        "bound"), err
+    from gijax.io import bounds
+
+    monkeypatch.setattr(bounds, "available_memory", lambda: 8 * 2**30)
+    for method in (["--preset", str(cfg)], ["--method", "rtss", "--rtss-preset", "RS-E16"]):
+        rc = main(["predict", *method, "--rig", "paper-train", "--images", *files,
+                   "--out", str(fresh), "--panorama-size", "1024x4096"])
+        err = capsys.readouterr().err
+        assert rc == 1 and ("--panorama-size 1024x4096 (rows x columns) needs about "
+                            f"{1024 * 4096 * 160 * (8 if '--preset' in method else 16) / 2**30:.1f}"
+                            " GiB") in err and "of the 8.0 GiB" in err, err
+    assert not fresh.exists()
 
 
 def test_read_image_gives_rgb_uint8_from_any_file(tmp_path):

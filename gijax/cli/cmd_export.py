@@ -80,6 +80,10 @@ def run(args) -> int:
     if note:
         print(note)
     candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)
+    from gijax.io.bounds import check_prediction
+
+    # The export traces and validates the network at this panorama (times --batch samples).
+    check_prediction(pano.shape, len(candidates) * max(args.batch or 1, 1))
     print(f"exporting {label}; rig {args.rig}; candidates: {how} "
           f"{np.round(candidates, 3).tolist()} m")
     result = export_onnx(model, rig, candidates, args.out, opset=args.opset, batch=args.batch,

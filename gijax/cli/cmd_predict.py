@@ -112,6 +112,7 @@ def run(args) -> int:
 def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     from gijax.candidates.spec import model_candidates
     from gijax.cli.options import panorama_from_args
+    from gijax.io.bounds import check_prediction
     from gijax.model import model_panorama
     from gijax.predict import LearnedPredictor
     from gijax.store import model_or_untrained
@@ -120,6 +121,7 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     hemi = model_panorama(config, "hemisphere").shape
     rig, pano = panorama_from_args(args, rig, hemi)
     candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)
+    check_prediction(pano.shape, len(candidates))
     result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args.out, title)
@@ -147,12 +149,14 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     from gijax.baseline.rtss import choose_candidates, get_rtss_preset
     from gijax.cli.options import panorama_from_args
     from gijax.data.images import fit_images
+    from gijax.io.bounds import check_prediction
     from gijax.predict import RtssPredictor
 
     config = get_rtss_preset(args.rtss_preset)
     rig, pano = panorama_from_args(args, rig, (160, 640))
     rig, images, masks = fit_images(rig, images, masks, None, log=print)
     candidates, how = choose_candidates(args.candidates, rig, config)
+    check_prediction(pano.shape, len(candidates))
     print(f"candidates: {how}; {len(candidates)} from {float(candidates[0]):.3f} to "
           f"{float(candidates[-1]):.3f} m")
     result = RtssPredictor(args.rtss_preset, candidates, pano).predict(rig, images, masks)

@@ -20,7 +20,9 @@ def _scale_for(rig: Rig, args) -> float:
     camera's aspect)."""
     size = args.image_size if args.image_size is not None else args.size
     if size is None:
-        return float(args.scale)
+        from gijax.io.bounds import check_scale
+
+        return check_scale("--scale", args.scale)
     h, w = size
     given = f"{_size_option(args)} " + (f"{h}x{w}" if args.image_size is not None else f"{w}x{h}")
     factors = set()
@@ -58,10 +60,17 @@ def run(args) -> int:
         fovs = ", ".join(f"{math.degrees(float(c.fov)):.0f}" for c in base.cameras)
         print(f"lenses drawn (seed {args.lens_seed}): {model}, fields of view {fovs} deg")
     h, w = pano.shape
+    scale = _scale_for(base, args)
+    from gijax.geometry.cameras import scale_camera
+    from gijax.io.bounds import check_render
+
+    # Before the output folder exists: a size that cannot be rendered leaves nothing behind.
+    scaled = [scale_camera(cam, scale) for cam in base.cameras]
+    check_render([(name, c.width, c.height) for name, c in zip(base.names, scaled)], (w, h))
     args.interrupted_keeps = (f"{args.out} keeps the samples written so far; the same "
                               f"command continues from them")
     rig = render_dataset(base, args.out, args.samples, seed=args.seed,
-                         image_scale=_scale_for(base, args), pano=pano, style=args.style,
+                         image_scale=scale, pano=pano, style=args.style,
                          trajectory_size=args.trajectory_size, durable=args.durable, log=print)
     print(f"{args.out}: {args.samples} samples ({rig.num_cameras} cameras "
           f"{rig.cameras[0].width}x{rig.cameras[0].height}, panorama {w}x{h})")
