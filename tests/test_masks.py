@@ -67,3 +67,17 @@ def test_missing_unreadable_and_wrong_size_name_the_file(tmp_path):
         read_mask(tmp_path / "cut.png")
     with pytest.raises(ValueError, match=r"grey8\.png is 5x2 px but the camera's image is 4x2 px"):
         read_mask(good, (2, 4))
+
+
+def test_a_truncated_jpeg_mask_is_refused(tmp_path):
+    import cv2
+
+    mask = np.zeros((40, 60), np.uint8)
+    mask[10:30, 15:45] = 255
+    data = cv2.imencode(".jpg", mask)[1].tobytes()
+    (tmp_path / "m.jpg").write_bytes(data)
+    np.testing.assert_array_equal(read_mask(tmp_path / "m.jpg") > 0, cv2.imdecode(
+        np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) > 0)
+    (tmp_path / "cut.jpg").write_bytes(data[:len(data) * 2 // 3])
+    with pytest.raises(ValueError, match=r"--masks camera 0: .*cut\.jpg: truncated"):
+        read_mask(tmp_path / "cut.jpg", label="--masks camera 0")

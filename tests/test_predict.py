@@ -231,3 +231,40 @@ def test_read_image_gives_rgb_uint8_from_any_file(tmp_path):
         read_image(tmp_path / "bad.png")
     with pytest.raises(FileNotFoundError, match="no such image"):
         read_image(tmp_path / "missing.png")
+
+
+def test_truncated_jpeg_and_png_are_refused_not_half_decoded(tmp_path):
+    """OpenCV decodes a cut JPEG as far as it goes (the rest grey) with only a warning: the
+    reader refuses it in one error naming the file; whole files (an Exif thumbnail's scan
+    before the image's, bytes a camera appends after the end marker) read as before."""
+    import cv2
+
+    from gijax.data.images import read_image
+
+    # Smooth colours, which JPEG keeps within a few levels (noise it would not).
+    yy, xx = np.mgrid[0:64, 0:96]
+    img = np.stack([xx * 2, yy * 3, 255 - xx - yy], -1).astype(np.uint8)
+    jpeg = cv2.imencode(".jpg", img[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    whole = tmp_path / "whole.jpg"
+    whole.write_bytes(jpeg)
+    ref = read_image(whole)
+    assert ref.shape == (64, 96, 3) and np.abs(ref.astype(int) - img).mean() < 3
+    # Half of the file: OpenCV alone returns a full-size image from it.
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(jpeg[:len(jpeg) // 2])
+    assert cv2.imread(str(cut)) is not None
+    with pytest.raises(ValueError, match=rf"{cut}: truncated: the image data that starts at "
+                                         rf"byte \d+ has no end-of-image marker"):
+        read_image(cut)
+    # A thumbnail-like complete JPEG inside an APP1 segment before the image, and trailer bytes.
+    thumb = cv2.imencode(".jpg", img[:8, :8])[1].tobytes()
+    app1 = b"\xff\xe1" + (len(thumb) + 2).to_bytes(2, "big") + thumb
+    (tmp_path / "exif.jpg").write_bytes(jpeg[:2] + app1 + jpeg[2:] + b"\x00" * 16)
+    np.testing.assert_array_equal(read_image(tmp_path / "exif.jpg"), ref)
+    (tmp_path / "exifcut.jpg").write_bytes((jpeg[:2] + app1 + jpeg[2:])[:len(app1) + 400])
+    with pytest.raises(ValueError, match="truncated"):
+        read_image(tmp_path / "exifcut.jpg")
+    png = cv2.imencode(".png", img)[1].tobytes()
+    (tmp_path / "cut.png").write_bytes(png[:len(png) - 40])
+    with pytest.raises(ValueError, match=r"cut\.png: .*(runs past the end|no PNG end chunk)"):
+        read_image(tmp_path / "cut.png")

@@ -24,10 +24,21 @@ def read_image(path: str | os.PathLike, grey: bool = False) -> np.ndarray:
     """
     import cv2
 
+    from gijax.io.jpeg import check_jpeg_complete, is_jpeg
+    from gijax.io.png import PNG_SIGNATURE, check_png_chunks
+
     path = str(path)
     if not Path(path).is_file():
         raise FileNotFoundError(f"{path}: no such image")
-    img = cv2.imread(path, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_UNCHANGED)
+    data = Path(path).read_bytes()
+    # A truncated PNG or JPEG decodes partly (the rest grey or black) with only a warning from
+    # the codec on stderr: checked from the bytes first, so that it is refused instead.
+    problem = (check_png_chunks(data) if data.startswith(PNG_SIGNATURE)
+               else check_jpeg_complete(data) if is_jpeg(data) else None)
+    if problem:
+        raise ValueError(f"{path}: {problem}")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8),
+                       cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ValueError(f"{path}: not a readable image")
     if grey:

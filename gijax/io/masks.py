@@ -18,6 +18,7 @@ import numpy as np
 
 from gijax.geometry.layouts import BUILTIN_LAYOUTS
 from gijax.geometry.rig import Rig
+from gijax.io.jpeg import check_jpeg_complete, is_jpeg
 from gijax.io.png import is_png, read_png
 
 IMPORT_HINT = "gijax rig import CALIB --masks m0.png m1.png ... --out rig.yaml"
@@ -34,8 +35,8 @@ def read_mask(path, hw: tuple[int, int] | None = None, label: str = "") -> np.nd
     Every mask of gijax is read here: rig files, ``--masks`` of the commands, and datasets.
 
     Args:
-      path: the image (PNG, checked for truncation and damage first; other formats OpenCV
-        reads).
+      path: the image (PNG, checked for truncation and damage first; JPEG, checked for
+        truncation; other formats OpenCV reads).
       hw: (height, width) the mask must have (its camera's image size), or None.
       label: starts every error and names where the mask was asked for (the rig file and
         camera, the command-line option and camera, or the dataset row).
@@ -52,8 +53,12 @@ def read_mask(path, hw: tuple[int, int] | None = None, label: str = "") -> np.nd
     if is_png(path):
         img = read_png(path, label)
     else:
+        data = path.read_bytes()
+        problem = check_jpeg_complete(data) if is_jpeg(data) else None
+        if problem:
+            raise ValueError(f"{prefix}{path}: {problem}")
         # UNCHANGED: a 16-bit mask read as 8-bit grey would turn values below 256 into 0.
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise ValueError(f"{prefix}{path} is not a readable image (expected a mask image, "
                              f"e.g. a PNG)")
