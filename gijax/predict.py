@@ -49,7 +49,7 @@ from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import coverage_of, panorama_rays, panorama_rotation
 from gijax.data.images import fit_images
 from gijax.geometry.rig import Rig, project_rig_points
-from gijax.io.paths import atomic_path, write_bytes_atomic
+from gijax.io.replace import FolderKind
 from gijax.model import (OmniStereoNet, check_candidates, coverage_note, forward, make_grids,
                          model_panorama, model_rig)
 from gijax.nn.presets import ModelConfig
@@ -344,11 +344,6 @@ def mark_invalid(result: dict) -> dict:
     return out
 
 
-def _atomic_save_npy(path: Path, array: np.ndarray) -> None:
-    with atomic_path(path) as tmp:  # the temporary ends in .npy, so np.save appends nothing
-        np.save(tmp, array)
-
-
 def _metre_ticks(d_min: float, d_max: float) -> dict:
     """Colour-bar ticks at round distances, placed in inverse distance, labelled in metres."""
     ticks = {}
@@ -358,8 +353,25 @@ def _metre_ticks(d_min: float, d_max: float) -> dict:
     return ticks
 
 
+PREDICTION_RECORD = "prediction.json"
+PREDICTION = FolderKind(
+    "prediction folder", "prediction",
+    frozenset({"distance.npy", "valid.npy", "valid.png", "inverse_distance.png",
+               "uncertainty.png", "rgb.png", "points.ply", PREDICTION_RECORD}),
+    record=PREDICTION_RECORD)
+
+
+def check_prediction_folder(out_dir: str | os.PathLike, inputs=()) -> Path:
+    """``out_dir`` as a Path when a prediction may be written there: a new path, an empty
+    folder, or an earlier prediction (its files only, ``prediction.json`` among them) that holds
+    none of ``inputs``; else ValueError, one line. Call it before predicting."""
+    from gijax.io.replace import check_replaceable
+
+    return check_replaceable(out_dir, PREDICTION, inputs)
+
+
 def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: str = "",
-                     max_point_distance: float | None = None) -> dict:
+                     max_point_distance: float | None = None, inputs=()) -> dict:
     """Write a :func:`predict` result to ``out_dir``; returns {kind: path}.
 
     Files: ``distance.npy`` (H, W) float32 metres; ``valid.npy`` (H, W) bool and ``valid.png``
@@ -371,13 +383,27 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     ``max_point_distance``, by default the farthest candidate, are left out) and
     ``prediction.json`` (candidates, title, sizes, valid pixel count). Invalid pixels follow
     :data:`INVALID` in every file.
+
+    The folder is written whole: new, or replacing an earlier prediction (never another
+    folder, :func:`check_prediction_folder`), assembled beside it and swapped in, so that a
+    stop half way (Ctrl-C, a full disk) leaves the earlier prediction as it was and never a
+    mix of old and new files (:func:`gijax.io.replace.replace_folder`).
     """
-    from gijax.io.paths import check_output_dir
+    from gijax.io.replace import replace_folder
+
+    out = check_prediction_folder(out_dir, inputs)
+    names = replace_folder(out, PREDICTION, lambda tmp: _write_prediction_files(
+        result, rig, tmp, title, max_point_distance), inputs)
+    return {kind: str(out / name) for kind, name in names.items()}
+
+
+def _write_prediction_files(result: dict, rig: Rig, out: Path, title: str,
+                            max_point_distance: float | None) -> dict:
+    """The files of :func:`write_prediction`, written plainly into the new folder ``out``;
+    returns {kind: file name}."""
     from gijax.viz.colormap import save_panorama_png  # matplotlib only where files are drawn
     from gijax.viz.pointcloud import panorama_points, write_ply
 
-    out = check_output_dir(out_dir, "output folder")
-    out.mkdir(parents=True, exist_ok=True)
     cand = np.asarray(result["candidates"], np.float64)
     d_min, d_max = float(cand[0]), float(cand[-1])
     result = mark_invalid(result)
@@ -385,12 +411,12 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     valid = np.asarray(result["valid"], bool)
     paths = {}
     paths["distance"] = str(out / "distance.npy")
-    _atomic_save_npy(Path(paths["distance"]), distance)
+    np.save(paths["distance"], distance)
     paths["valid"] = str(out / "valid.npy")
-    _atomic_save_npy(Path(paths["valid"]), valid)
+    np.save(paths["valid"], valid)
     paths["valid_png"] = str(out / "valid.png")
-    write_bytes_atomic(Path(paths["valid_png"]),
-                       cv2.imencode(".png", valid.astype(np.uint8) * 255)[1].tobytes())
+    Path(paths["valid_png"]).write_bytes(
+        cv2.imencode(".png", valid.astype(np.uint8) * 255)[1].tobytes())
     paths["inverse_distance_png"] = save_panorama_png(
         str(out / "inverse_distance.png"), result["inv_distance"], "distance (colour = 1/d)",
         1.0 / d_max, 1.0 / d_min, cmap="turbo", title=title, valid=valid,
@@ -410,8 +436,8 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
     rgb = np.where(colour_valid[..., None], colour, 0.0)
     rgb = np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
     paths["rgb_png"] = str(out / "rgb.png")
-    write_bytes_atomic(Path(paths["rgb_png"]),
-                       cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))[1].tobytes())
+    Path(paths["rgb_png"]).write_bytes(
+        cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))[1].tobytes())
     limit = d_max if max_point_distance is None else max_point_distance
     pano = result.get("panorama") or Panorama.hemisphere(*distance.shape)
     points, keep = panorama_points(distance, np.asarray(rig.reference), pano, valid=valid,
@@ -432,6 +458,6 @@ def write_prediction(result: dict, rig: Rig, out_dir: str | os.PathLike, title: 
                                       "(row 0) up; 0 deg in the middle column",
                          "rotation_panorama_to_rig": np.asarray(panorama_rotation(rig),
                                                                 np.float64).tolist()}}
-    write_bytes_atomic(out / "prediction.json", json.dumps(meta, indent=2).encode())
-    paths["meta"] = str(out / "prediction.json")
-    return paths
+    (out / PREDICTION_RECORD).write_bytes(json.dumps(meta, indent=2).encode())
+    paths["meta"] = str(out / PREDICTION_RECORD)
+    return {k: Path(v).name for k, v in paths.items()}

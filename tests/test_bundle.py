@@ -102,9 +102,10 @@ def test_a_bundle_replaces_only_a_bundle_and_survives_a_kill_mid_swap(tmp_path, 
     assert not out.exists() and len(list(tmp_path.glob(".bundle.old-*"))) == 1
     save_bundle(model, config_file, tmp_path / "elsewhere")  # another bundle: no recovery here
     assert not out.exists()
-    from gijax.train.bundle import _recover
+    from gijax.io.replace import recover
+    from gijax.train.bundle import BUNDLE
 
-    _recover(out)                            # what the next call on this bundle does first
+    recover(out, BUNDLE)                     # what the next call on this bundle does first
     assert json.loads((out / "PROVENANCE.json").read_text()) == {"v": 2}
     save_bundle(model, config_file, out, {"v": 4})
     assert json.loads((out / "PROVENANCE.json").read_text()) == {"v": 4}

@@ -268,3 +268,51 @@ def test_truncated_jpeg_and_png_are_refused_not_half_decoded(tmp_path):
     (tmp_path / "cut.png").write_bytes(png[:len(png) - 40])
     with pytest.raises(ValueError, match=r"cut\.png: .*(runs past the end|no PNG end chunk)"):
         read_image(tmp_path / "cut.png")
+
+
+def test_a_prediction_replaces_only_a_prediction_and_a_stop_leaves_the_old_one(
+        setup, tmp_path, monkeypatch):
+    """``write_prediction`` writes a new folder or replaces an earlier prediction whole; any
+    other folder (a dataset's, one holding an input) is refused naming it, untouched; a stop
+    half way (here a full disk while points.ply is written) leaves the earlier prediction as
+    it was, with no temporary left behind."""
+    import errno
+    import json as js
+
+    import gijax.viz.pointcloud
+    from gijax.predict import check_prediction_folder
+
+    rig, _, _, out = setup
+    data = tmp_path / "dataset"
+    data.mkdir()
+    (data / "metadata.json").write_text("{}")
+    (data / "distance.npy").write_text("mine")
+    with pytest.raises(ValueError, match=r"prediction folder .*dataset: exists and is not a "
+                                         r"prediction \(it holds metadata.json\)"):
+        write_prediction(out, rig, data)
+    # Only prediction file names but no record: not gijax's either.
+    (data / "metadata.json").unlink()
+    with pytest.raises(ValueError, match=r"is not a prediction \(it has no prediction.json\)"):
+        write_prediction(out, rig, data)
+    assert (data / "distance.npy").read_text() == "mine"
+    image = tmp_path / "in" / "cam0.png"
+    image.parent.mkdir()
+    image.write_bytes(b"x")
+    with pytest.raises(ValueError, match="holds the input"):
+        check_prediction_folder(image.parent, [image])
+
+    pred = tmp_path / "pred"
+    write_prediction(out, rig, pred, title="first")
+    before = {p.name: p.read_bytes() for p in pred.iterdir()}
+    write_prediction(out, rig, pred, title="second")
+    assert js.loads((pred / "prediction.json").read_text())["title"] == "second"
+
+    def disk_full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    write_prediction(out, rig, pred, title="first")
+    monkeypatch.setattr(gijax.viz.pointcloud, "write_ply", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        write_prediction(out, rig, pred, title="third")
+    assert {p.name: p.read_bytes() for p in pred.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dataset", "in", "pred"]

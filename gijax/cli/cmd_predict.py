@@ -76,10 +76,13 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from gijax.data.images import read_images
     from gijax.io.masks import read_mask, warn_if_unmasked
-    from gijax.io.paths import check_output_dir
     from gijax.io.rigfile import load_rig
+    from gijax.predict import check_prediction_folder
 
-    check_output_dir(args.out)
+    # Before any work: --out must be new, empty or an earlier prediction, and hold no input.
+    args.inputs = [*args.images, *(args.masks or [])]
+    check_prediction_folder(args.out, args.inputs)
+    args.interrupted_keeps = f"{args.out} is as it was before this command"
     rig = load_rig(args.rig)
     warn_if_unmasked(rig, args.rig, other_masks=args.masks is not None)
     if len(args.images) != rig.num_cameras:
@@ -124,14 +127,14 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     check_prediction(pano.shape, len(candidates))
     result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
     title = f"{label}; candidates: {how}"
-    _report(result, rig, args.out, title)
+    _report(result, rig, args, title)
     return 0
 
 
-def _report(result: dict, rig, out: str, title: str) -> None:
+def _report(result: dict, rig, args, title: str) -> None:
     from gijax.predict import mark_invalid, write_prediction
 
-    paths = write_prediction(result, rig, out, title=title)
+    paths = write_prediction(result, rig, args.out, title=title, inputs=args.inputs)
     print(title)
     # The files' convention: only valid pixels with a finite distance count.
     marked = mark_invalid(result)
@@ -160,7 +163,7 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     print(f"candidates: {how}; {len(candidates)} from {float(candidates[0]):.3f} to "
           f"{float(candidates[-1]):.3f} m")
     result = RtssPredictor(args.rtss_preset, candidates, pano).predict(rig, images, masks)
-    _report(result, rig, args.out, f"classical baseline {args.rtss_preset}; candidates: {how}")
+    _report(result, rig, args, f"classical baseline {args.rtss_preset}; candidates: {how}")
     return 0
 
 
@@ -189,5 +192,5 @@ def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
     feed_images = pred.info.feed(rig, images, masks)[0]["images"][0]
     result = result.replace(colour=point_colours(small, feed_images, None, result.distance,
                                                  result.panorama))
-    _report(result, rig, args.out, f"ONNX model {args.onnx} (onnxruntime)")
+    _report(result, rig, args, f"ONNX model {args.onnx} (onnxruntime)")
     return 0
