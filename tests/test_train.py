@@ -570,3 +570,48 @@ def test_a_folder_that_is_not_a_run_folder_is_never_trained_into(tmp_path):
         Trainer(_config(steps=1), folder, tiny_rig(), array_stream_factory(arr, 2, 0), None,
                 progress=False)
     assert sorted(p.name for p in folder.iterdir()) == ["manifest.json"]
+
+
+def _mount_tmpfs(path, size: str) -> bool:
+    import shutil
+    import subprocess
+
+    if shutil.which("mount") is None:
+        return False
+    path.mkdir(parents=True, exist_ok=True)
+    return subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                          capture_output=True).returncode == 0
+
+
+@pytest.mark.usefixtures("quick_compiles_here")
+def test_a_full_disk_stops_training_in_one_line_and_the_same_command_continues(tmp_path, capfd):
+    """A real full disk (a 300 KB tmpfs: the config and logs fit, the first checkpoint does
+    not): one line on stderr, not orbax's per-array tracebacks; the partial checkpoint removed;
+    with space freed, the same command completes the run."""
+    import subprocess
+
+    from gijax.cli import main
+
+    disk = tmp_path / "disk"
+    if not _mount_tmpfs(disk, "300k"):
+        pytest.skip("needs to mount a small tmpfs (root on Linux)")
+    try:
+        _write_tiny_dataset(tmp_path / "train", 4, 0)
+        overrides = sum([["--override", f"{k}={json.dumps(v)}"] for k, v in TINY.items()], [])
+        cand = tmp_path / "cand.json"
+        cand.write_text(json.dumps(CANDIDATES))
+        argv = ["train", "--preset", "E8-cpu", "--data", str(tmp_path / "train"), "--out",
+                str(disk / "run"), "--steps", "4", "--batch", "2", "--ckpt-every", "2",
+                "--candidates", str(cand), "--workers", "0", "--no-progress", *overrides]
+        capfd.readouterr()
+        assert main(argv) == 1
+        err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+        assert len(err) == 1, err
+        assert err[0].startswith("gijax train: error: disk full while writing the checkpoint "
+                                 "of step 2 into ") and "the same command to continue" in err[0]
+        assert not list((disk / "run" / "checkpoints").glob("*tmp*"))
+        subprocess.run(["mount", "-o", "remount,size=20m", str(disk)], check=True)
+        assert main(argv) == 0
+        assert sorted(p.name for p in (disk / "run" / "checkpoints").iterdir()) == ["2", "4"]
+    finally:
+        subprocess.run(["umount", str(disk)], capture_output=True)

@@ -20,6 +20,7 @@ since they may belong to a training process that is saving right now.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import shutil
@@ -102,6 +103,56 @@ def quiet_restore():
             yield
     finally:
         logger.disabled = previous
+
+
+class DiskFullError(OSError):
+    """A checkpoint could not be written for want of disk space; its partial files are gone."""
+
+
+def _disk_full(exc: BaseException) -> bool:
+    seen = []
+    while exc is not None and exc not in seen:
+        seen.append(exc)
+        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+            return True
+        if "No space left on device" in str(exc) or "os_error_code='28'" in str(exc):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+@contextlib.contextmanager
+def writing(manager: ocp.CheckpointManager, step: int, kept: Callable[[], Optional[int]]):
+    """Around one checkpoint write: SIGINT as in :func:`plain_sigint`, and a full disk turned
+    into one :class:`DiskFullError` saying what the run keeps, with the partial checkpoint
+    removed (it would hold the space that a resume needs).
+
+    orbax's writer threads log each failed array, with a traceback, through absl before the
+    failure reaches the caller (about a hundred lines for a small model); those records are
+    dropped here, since the failure itself is raised. ``kept()`` gives the newest complete
+    checkpoint's step, or None.
+    """
+    absl = logging.getLogger("absl")
+    previous = absl.disabled
+    absl.disabled = True
+    try:
+        with plain_sigint():
+            yield
+    except Exception as exc:
+        if not _disk_full(exc):
+            raise
+        folder = Path(manager.directory)
+        for partial in folder.glob(f"{step}.orbax-checkpoint-tmp*"):
+            shutil.rmtree(partial, ignore_errors=True)
+        last = kept()
+        keeps = (f"the run keeps its checkpoint of step {last}" if last is not None
+                 else "the run has no complete checkpoint yet")
+        raise DiskFullError(errno.ENOSPC, f"disk full while writing the checkpoint of step "
+                                          f"{step} into {folder} (its partial files are "
+                                          f"removed); {keeps}: free space and run the same "
+                                          f"command to continue") from None
+    finally:
+        absl.disabled = previous
 
 
 def failure_reason(exc: BaseException) -> str:
@@ -207,7 +258,7 @@ class CheckpointStore:
     # ------------------------------------------------------------------ saving
     def save(self, step: int, state: Any, meta: dict) -> None:
         """Periodic checkpoint of ``state`` at ``step`` (blocks until it is complete)."""
-        with plain_sigint():
+        with writing(self.periodic, step, self.latest_step):
             self.periodic.save(step, args=self._args(state, meta), force=True)
             self.periodic.wait_until_finished()
 
@@ -233,7 +284,7 @@ class CheckpointStore:
         if not better:
             return False
         meta = dict(meta, metrics={k: float(v) for k, v in metrics.items()})
-        with plain_sigint():
+        with writing(self.best, step, self.latest_step):
             self.best.save(step, args=self._args(state, meta), metrics={self.best_metric: value},
                            force=True)
             self.best.wait_until_finished()
