@@ -553,6 +553,15 @@ def test_a_run_whose_folder_is_lost_resumes_from_its_pack_with_the_same_losses(t
                                          r"differs from this run's in unet_base"):
         Trainer(_config(model_overrides=wider, steps=4, ckpt_every=2, pack=str(other)),
                 tmp_path / "w", tiny_rig(), stream, None, progress=False)
+    # A pack written before a configuration field existed (here `refine`) describes the same
+    # network as that field's default: it resumes.
+    doc = json.loads((other / "pack.json").read_text())
+    del doc["model_config"]["refine"]
+    (other / "pack.json").write_text(json.dumps(doc))
+    older = Trainer(_config(steps=4, ckpt_every=2, pack=str(other)), tmp_path / "old",
+                    tiny_rig(), stream, None, progress=False)
+    assert older.start_step == 2
+    older.close()
 
 
 def test_a_folder_that_is_not_a_run_folder_is_never_trained_into(tmp_path):

@@ -31,7 +31,7 @@ from gijax.model import model_rig
 from gijax.io.lock import FolderLock
 from gijax.train import step as S
 from gijax.io.paths import write_png_atomic, write_text_atomic
-from gijax.store.configs import CONFIG_FILE, model_config_to_dict
+from gijax.store.configs import CONFIG_FILE, model_config_from_dict, model_config_to_dict
 from gijax.store.checkpoints import CheckpointStore
 from gijax.train.config import TrainConfig, load_run_config, save_run_config
 from gijax.train.sources import RIG_KEY
@@ -267,7 +267,12 @@ class Trainer:
             return None
         where = Path(self.config.pack)
         self._check_meta(pack.meta)
-        found = pack.meta.get("model_config", {})
+        # Read as a config, so that a field added since the pack was written counts at its
+        # default (the network it describes is the same one).
+        try:
+            found = model_config_to_dict(model_config_from_dict(pack.meta.get("model_config", {})))
+        except (TypeError, ValueError):
+            found = pack.meta.get("model_config", {})
         expected = model_config_to_dict(dataclasses.replace(self.mc, conv3d="auto"))
         if dict(found, conv3d="auto") != expected:
             diff = sorted(k for k in expected if found.get(k) != expected[k] and k != "conv3d")
