@@ -11,7 +11,7 @@ from flax import nnx
 
 from gijax.geometry.layouts import TRAIN_BASELINE, synthetic_camera
 from gijax.geometry.rig import make_rig
-from gijax.model import OmniStereoNet, create_model, with_conv3d
+from gijax.model import OmniStereoNet, create_model, model_grids, with_conv3d
 from gijax.nn.presets import ModelConfig
 from gijax.train.losses import volume_loss
 
@@ -55,7 +55,12 @@ def inputs(n, seed, batch=1, hw=(32, 128)):
     return jnp.asarray(sur), jnp.asarray(masks)
 
 
-forward = nnx.jit(lambda m, s, k, r, c: m(s, k, r, c))
+def run(model, sur, masks, rig, cand):
+    """The network on surrogates with the sweep grids of ``rig`` and ``cand``."""
+    return model(sur, masks, model_grids(model.config, rig, cand))
+
+
+forward = nnx.jit(run)
 
 
 pytestmark = pytest.mark.usefixtures("quick_compiles")
@@ -107,8 +112,6 @@ def test_output_stride_1_runs_the_same_weights_with_the_cost_volume_at_the_outpu
     are; the U-Net's logits come out at the output's size and the probabilities are their
     softmax (no upsampling), and a cell is valid where the coarse model's 2 x 2 block is,
     up to the cells along the coarse grid's edges of visibility."""
-    from gijax.model import sweep_grids
-
     fine_cfg = dataclasses.replace(TINY_VAR, name="tiny-fine", cost_hw=TINY_VAR.output_hw,
                                    output_stride=1)
     fine = create_model(fine_cfg, seed=9)
@@ -124,7 +127,8 @@ def test_output_stride_1_runs_the_same_weights_with_the_cost_volume_at_the_outpu
     logits = np.asarray(out["logits"], np.float64)
     e = np.exp(logits - logits.max(axis=1, keepdims=True))
     np.testing.assert_allclose(np.asarray(out["prob"]), e / e.sum(1, keepdims=True), atol=1e-6)
-    px, ok = sweep_grids(rig, jnp.asarray(G8), fine_cfg)
+    grids = model_grids(fine_cfg, rig, jnp.asarray(G8))
+    px, ok = grids.sweep_px, grids.sweep_ok
     assert px.shape == (3, 8, 16, 64, 2) and ok.shape == (3, 8, 16, 64)
     agree = np.mean(np.asarray(out["valid"]) == np.asarray(coarse["valid"]))
     assert agree > 0.9, agree
@@ -153,13 +157,13 @@ def test_jit_equals_eager(variance_model):
     # Unmasked: a camera counts where its sampled mask is > 0, so at a mask edge a sweep point
     # on a pixel centre flips with the last bit of its coordinate; that is not what is compared.
     m = jnp.ones(sur.shape[:4], jnp.float32)
-    eager = variance_model(sur, m, rig, jnp.asarray(G8))
+    eager = run(variance_model, sur, m, rig, jnp.asarray(G8))
     # Compiled as in use (the module's quick compiles skip XLA's optimisation passes, whose
     # absence changes this untrained net's tiny logits by more than float rounding).
     previous = jax.config.read("jax_disable_most_optimizations")
     jax.config.update("jax_disable_most_optimizations", False)
     try:
-        jitted = nnx.jit(lambda mod, *a: mod(*a))(variance_model, sur, m, rig, jnp.asarray(G8))
+        jitted = nnx.jit(run)(variance_model, sur, m, rig, jnp.asarray(G8))
     finally:
         jax.config.update("jax_disable_most_optimizations", previous)
     for key in ("inv_distance", "prob", "entropy"):
@@ -198,7 +202,7 @@ def test_every_parameter_gets_a_finite_nonzero_gradient():
     @nnx.jit
     def grads(model):
         def loss_fn(model):
-            out = model(sur, m, rig, cand)
+            out = run(model, sur, m, rig, cand)
             return volume_loss(out["prob"], target, label_ok, cand)
         return nnx.grad(loss_fn)(model)
 
@@ -288,12 +292,12 @@ def test_bad_inputs_raise_before_computing(variance_model):
     ]
     for args, msg in cases:
         with pytest.raises(ValueError, match=msg):
-            variance_model(*args)
+            run(variance_model, *args)
     concat = create_model(TINY_CAT)
     pos4 = np.concatenate([pos, [[0.25, 0.2, 0.0]]])
     sur4, m4 = inputs(4, 0)
     with pytest.raises(ValueError, match="concatenates exactly 3 cameras"):
-        concat(sur4, m4, rig_from(pos4, pos[0]), cand)
+        run(concat, sur4, m4, rig_from(pos4, pos[0]), cand)
     with pytest.raises(ValueError, match="unknown model preset"):
         create_model("G17")
     with pytest.raises(ValueError, match="preset name or a ModelConfig"):
@@ -356,7 +360,7 @@ def test_guided_refinement_starts_as_the_identity_and_trains_only_itself():
     graphdef, params, rest = nnx.split(model, nnx.Param, ...)
 
     def refine_loss(p):
-        o = nnx.merge(graphdef, p, rest)(sur, m, rig, cand)
+        o = run(nnx.merge(graphdef, p, rest), sur, m, rig, cand)
         return smooth_l1_loss(o["inv_distance"], distance, valid, cand)
 
     grads = nnx.to_pure_dict(jax.jit(jax.grad(refine_loss))(params))
