@@ -135,6 +135,64 @@ def test_output_stride_1_runs_the_same_weights_with_the_cost_volume_at_the_outpu
     assert np.asarray(out["valid"]).any() and np.all(np.isfinite(np.asarray(out["inv_distance"])))
 
 
+def test_model_grids_are_the_sweep_at_the_configs_sizes():
+    """``model_grids``: the sweep of the cost panorama (half the output, 8 x 32) into the
+    feature maps (a quarter of the 32 x 128 surrogates), the guide grids (the 16 x 64 output
+    into the surrogates) only with the refinement; the other coverage keeps the resolution."""
+    from gijax.geometry.panorama import Panorama
+    from gijax.model import model_panorama
+    from gijax.sweep.grid import sweep_grid
+    from gijax.sweep.grids import sweep_grids
+
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    cand = jnp.asarray(G8)
+    grids = model_grids(TINY_VAR, rig, cand)
+    px, ok = sweep_grid(rig, cand, Panorama.hemisphere(8, 32), Panorama.hemisphere(8, 32))
+    np.testing.assert_array_equal(np.asarray(grids.sweep_px), np.asarray(px))
+    np.testing.assert_array_equal(np.asarray(grids.sweep_ok), np.asarray(ok))
+    np.testing.assert_array_equal(np.asarray(grids.candidates), G8)
+    assert grids.guide_px is None and grids.guide_ok is None
+    refine = model_grids(dataclasses.replace(TINY_VAR, refine=True), rig, cand)
+    gpx, gok = sweep_grid(rig, cand, Panorama.hemisphere(16, 64), Panorama.hemisphere(32, 128))
+    assert refine.guide_px.shape == (3, 8, 16, 64, 2)
+    np.testing.assert_array_equal(np.asarray(refine.guide_px), np.asarray(gpx))
+    np.testing.assert_array_equal(np.asarray(refine.guide_ok), np.asarray(gok))
+    sphere = model_grids(TINY_VAR, rig, cand, model_panorama(TINY_VAR, "sphere"))
+    assert sphere.sweep_px.shape == (3, 8, 16, 32, 2)
+    with pytest.raises(ValueError, match="divisible by 16"):
+        model_grids(TINY_VAR, rig, cand, Panorama.hemisphere(12, 64))
+    with pytest.raises(ValueError, match="needs 8 candidates"):
+        model_grids(TINY_VAR, rig, cand[:4])
+    with pytest.raises(ValueError, match="both the output panorama and the surrogate size"):
+        sweep_grids(rig, cand, Panorama.hemisphere(8, 32), (8, 32), Panorama.hemisphere(16, 64))
+
+
+def test_fisheye_surrogates_equal_each_cameras_surrogate_image():
+    """A batch of raw fisheye images through the surrogate maps gives, per sample, what
+    ``surrogate_images`` computes camera by camera from the rig."""
+    from gijax.geometry.panorama import Panorama
+    from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
+    from gijax.sweep.surrogate import surrogate_images
+
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    rng = np.random.default_rng(6)
+    images = jnp.asarray(rng.uniform(size=(2, 3, 64, 64, 3)), jnp.float32)
+    # Every camera blind on a third of its image (a rig body), another third per sample.
+    masks = np.ones((2, 3, 64, 64), np.float32)
+    masks[0, :, :, :21] = 0.0
+    masks[1, :, 40:] = 0.0
+    masks = jnp.asarray(masks)
+    sur, sur_masks = fisheye_surrogates(surrogate_resampling(rig, (32, 128)), images, masks)
+    assert sur.shape == (2, 3, 32, 128, 3) and sur_masks.shape == (2, 3, 32, 128)
+    for b in range(2):
+        want, want_masks = surrogate_images(rig, images[b], masks[b], Panorama.hemisphere(32, 128))
+        np.testing.assert_allclose(np.asarray(sur[b]), np.asarray(want), atol=1e-4)
+        np.testing.assert_allclose(np.asarray(sur_masks[b]), np.asarray(want_masks), atol=1e-4)
+        assert 0.3 < float(jnp.mean(sur_masks[b] > 0)) < 0.9
+
+
 def test_candidates_swap_without_touching_weights(variance_model):
     pos = tri_positions()
     rig = rig_from(pos, pos[0])
