@@ -35,7 +35,7 @@ from gijax.bench.memory import compiled_memory, host_peak_rss_mib, rss_bytes  # 
 from gijax.geometry.layouts import builtin_rig  # noqa: E402
 from gijax.geometry.rig import scale_rig  # noqa: E402
 from gijax.io.paths import write_json_atomic  # noqa: E402
-from gijax.model import create_model  # noqa: E402
+from gijax.model import create_model, model_grids  # noqa: E402
 from gijax.nn.presets import PRESETS  # noqa: E402
 
 PAPER_NAMES = ["E8", "G8", "E16", "G16", "G16V", "G16V-released", "G16VV"]
@@ -60,7 +60,7 @@ def measure(cfg, rig_name: str, reps: int, warmup: int) -> dict:
     graphdef, state = nnx.split(model)
 
     def forward(state, sur, masks, rig, cand):
-        return nnx.merge(graphdef, state)(sur, masks, rig, cand)["distance"]
+        return nnx.merge(graphdef, state)(sur, masks, model_grids(cfg, rig, cand))["distance"]
 
     t0 = time.perf_counter()
     compiled = jax.jit(forward).lower(state, sur, masks, rig, cand).compile()

@@ -53,7 +53,8 @@ def _jax_runner(model, rig, cand):
     from flax import nnx
 
     from gijax.export.onnx_export import eval_view, model_rig
-    from gijax.model import forward, make_grids
+    from gijax.model import model_grids
+    from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
 
     cfg = model.config
     run_rig = model_rig(cfg, rig)
@@ -61,7 +62,9 @@ def _jax_runner(model, rig, cand):
 
     @nnx.jit
     def fwd(view, images, masks):
-        return forward(view, images, masks, make_grids(run_rig, c, cfg))["inv_distance"]
+        sur, sur_masks = fisheye_surrogates(surrogate_resampling(run_rig, cfg.surrogate_hw),
+                                            images, masks)
+        return view(sur, sur_masks, model_grids(cfg, run_rig, c))["inv_distance"]
 
     view = eval_view(model)
     return lambda images, masks: np.asarray(fwd(view, images, masks))

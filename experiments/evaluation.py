@@ -112,9 +112,9 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
     from flax import nnx
 
     from gijax.candidates.spec import resolve_candidates
-    from gijax.model import forward as model_forward, make_grids
+    from gijax.model import model_grids, model_rig
+    from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
     from gijax.sweep.surrogate import as_float_image
-    from gijax.model import model_rig
 
     model, mc, train_cand = loaded_model(run_dir)
     if mc.cost_volume == "concat" and rig.num_cameras != mc.num_cameras:
@@ -126,8 +126,10 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
     mrig = model_rig(rig)
 
     def forward(state, images, masks, rig, cand):
-        out = model_forward(nnx.merge(graphdef, state), as_float_image(images)[None],
-                            masks[None], make_grids(rig, cand, mc))
+        grids = model_grids(mc, rig, cand)
+        sur, sur_masks = fisheye_surrogates(surrogate_resampling(rig, mc.surrogate_hw),
+                                            as_float_image(images)[None], masks[None])
+        out = nnx.merge(graphdef, state)(sur, sur_masks, grids)
         return out["inv_distance"][0]
 
     cam = rig.cameras[0]

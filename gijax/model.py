@@ -1,15 +1,18 @@
-"""The whole network: raw fisheye images -> surrogate images -> shared features -> sphere sweep
--> cost volume -> 3D U-Net -> soft-argmax in inverse distance.
+"""The whole network: surrogate images -> shared features -> sphere sweep -> cost volume -> 3D
+U-Net -> soft-argmax in inverse distance.
 
-Grids are the boundary between geometry and network. Two pure functions, and nothing else, run
-a model anywhere in gijax (training, the data loader, predict, evaluation, the ONNX export):
-
-* :func:`make_grids` (rig, candidates, config) -> :class:`Grids`: the surrogate-resampling maps
-  (per camera, the fisheye pixel of every surrogate pixel) and the sweep grids (per camera, the
-  feature-map pixel of every (candidate, cell) point and its validity), with the candidates;
-* :func:`forward` (model, images, masks, grids): the network from raw images. It is
-  :func:`gijax.sweep.surrogate.resample_surrogates` (the first stage, which the data loader runs
-  on its own threads) followed by :func:`forward_surrogates` (everything after it).
+One call runs the network anywhere in gijax (training, evaluation, adaptation, predict, the
+ONNX export, the benchmarks): ``model(surrogates, masks, grids)``, :class:`OmniStereoNet` on
+surrogate images with the :class:`gijax.sweep.grids.SweepGrids` of the rig and candidates.
+:func:`model_grids` (config, rig, candidates, output panorama) makes those grids: it turns the
+config into the sizes the sweep layer takes. Raw fisheye images become surrogate images first,
+by :func:`gijax.sweep.grids.fisheye_surrogates` with the
+:func:`gijax.sweep.grids.surrogate_resampling` maps at ``config.surrogate_hw`` (the data
+loader does the same per sample on its own threads). The network's stages are its methods
+(:meth:`OmniStereoNet.extract_features`, :meth:`~OmniStereoNet.sweep`,
+:meth:`~OmniStereoNet.build_cost_volume`, :meth:`~OmniStereoNet.unet_logits`,
+:meth:`~OmniStereoNet.regress`, :meth:`~OmniStereoNet.refined`), which ``__call__`` runs in
+order.
 
 Shapes for one call (B samples, N cameras, D candidates; paper size in brackets, see
 ``docs/model.md``):
@@ -36,6 +39,7 @@ of cameras (at least two).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -46,47 +50,11 @@ from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import coverage_of, panorama_of
 from gijax.geometry.rig import Rig
 from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_cost_volume,
-                      make_unet, regress)
+                      make_unet, param_count, regress)
 from gijax.nn.refine import GuidedRefinement, colour_guide
-from gijax.sweep.grid import rescale_pixels, sweep_grid
-from gijax.sweep.sample import sample_sweep
-from gijax.sweep.surrogate import resample_surrogates, surrogate_maps
+from gijax.sweep.grids import SweepGrids, cost_panorama, sweep_colours, sweep_features, sweep_grids
 
 Array = jax.Array
-
-# A camera sees a sweep point when its bilinearly sampled mask is above this (the release's
-# rule: any overlap with a seen pixel counts).
-MASK_THRESHOLD = 0.0
-
-
-@dataclasses.dataclass(frozen=True)
-class Grids:
-    """Sampling grids of one rig and candidate list for one model size (a pytree of arrays).
-
-    Attributes:
-      surrogate_px: (N, Hs, Ws, 2) raw-image pixel (u, v) of every surrogate pixel.
-      surrogate_ok: (N, Hs, Ws) bool, the surrogate pixel is inside the lens image.
-      sweep_px: (N, D, h, w, 2) feature-map pixel (col, row) of every (candidate, cell) point.
-      sweep_ok: (N, D, h, w) bool, the point is in front of and seen by that camera's lens.
-      candidates: (D,) ascending distances, metres.
-      guide_px: (N, D, H, W, 2) surrogate pixel (col, row) of every (candidate, output pixel)
-        point, for a model with the guided refinement (``config.refine``); else None.
-      guide_ok: (N, D, H, W) bool, the point is in front of and seen by that camera's lens.
-    """
-
-    surrogate_px: Array
-    surrogate_ok: Array
-    sweep_px: Array
-    sweep_ok: Array
-    candidates: Array
-    guide_px: Array | None = None
-    guide_ok: Array | None = None
-
-
-jax.tree_util.register_dataclass(
-    Grids, data_fields=["surrogate_px", "surrogate_ok", "sweep_px", "sweep_ok", "candidates",
-                        "guide_px", "guide_ok"],
-    meta_fields=[])
 
 
 def model_rig(rig: Rig) -> Rig:
@@ -107,12 +75,6 @@ def model_panorama(config: ModelConfig, coverage: str | None = None) -> Panorama
     return pano
 
 
-def cost_panorama(pano: Panorama, stride: int = 2) -> Panorama:
-    """The cost-volume panorama of an output panorama: the same latitudes at ``1 / stride``
-    the size (a model's ``output_stride``)."""
-    return Panorama(pano.height // stride, pano.width // stride, pano.lat_min, pano.lat_max)
-
-
 def _check_output_panorama(config: ModelConfig, pano: Panorama) -> None:
     h, w = pano.shape
     m = 8 * config.output_stride
@@ -123,40 +85,20 @@ def _check_output_panorama(config: ModelConfig, pano: Panorama) -> None:
                          f"and the U-Net halves it three times)")
 
 
-def sweep_grids(rig: Rig, candidates: Array, config: ModelConfig,
-                pano: Panorama | None = None) -> tuple[Array, Array]:
-    """(N, D, h, w, 2) feature-map pixels and (N, D, h, w) validity of the sweep of ``rig`` at
-    ``candidates`` (D,) metres, for ``config``'s feature size and the cost volume of the output
-    panorama ``pano`` (default :func:`model_panorama`), oriented by the rig's panorama frame."""
-    pano = model_panorama(config) if pano is None else pano
-    _check_output_panorama(config, pano)
-    return sweep_grid(rig, candidates, cost_panorama(pano, config.output_stride),
-                      Panorama.hemisphere(*config.feature_hw))
-
-
-def guide_grids(rig: Rig, candidates: Array, config: ModelConfig,
-                pano: Panorama | None = None) -> tuple[Array, Array]:
-    """(N, D, H, W, 2) surrogate pixels and (N, D, H, W) validity of the sweep of ``rig`` at
-    ``candidates`` over the output panorama ``pano`` itself (default :func:`model_panorama`):
-    where the guided refinement reads the cameras' colours (:mod:`gijax.nn.refine`)."""
-    pano = model_panorama(config) if pano is None else pano
-    _check_output_panorama(config, pano)
-    return sweep_grid(rig, candidates, pano, Panorama.hemisphere(*config.surrogate_hw))
-
-
-def make_grids(rig: Rig, candidates: Array, config: ModelConfig,
-               pano: Panorama | None = None) -> Grids:
-    """Every grid the network needs for ``rig`` (at the model's image size, i.e. intrinsics
-    already scaled by ``config.image_scale``), ``candidates`` (D,) metres and the output
-    panorama ``pano`` (static; default :func:`model_panorama`, the coverage the model was
-    trained on). Pure and traceable: evaluated once for a fixed rig, or inside jit when the
-    rig is an input."""
+def model_grids(config: ModelConfig, rig: Rig, candidates: Array,
+                pano: Panorama | None = None) -> SweepGrids:
+    """The :class:`~gijax.sweep.grids.SweepGrids` of a network of ``config`` for ``rig`` (at the
+    model's image size, i.e. intrinsics already scaled by ``config.image_scale``),
+    ``candidates`` (D,) metres and the output panorama ``pano`` (static; default
+    :func:`model_panorama`, the coverage the model was trained on): the sweep over its cost
+    panorama into the feature maps, and the guide grids when ``config.refine``. Pure and
+    traceable: evaluated once for a fixed rig, or inside jit when the rig is an input."""
     check_candidates(config, candidates)
-    candidates = jnp.asarray(candidates, rig.translations.dtype)
-    sur_px, sur_ok = surrogate_maps(rig, Panorama.hemisphere(*config.surrogate_hw))
-    px, ok = sweep_grids(rig, candidates, config, pano)
-    guide = guide_grids(rig, candidates, config, pano) if config.refine else (None, None)
-    return Grids(sur_px, sur_ok, px, ok, candidates, *guide)
+    pano = model_panorama(config) if pano is None else pano
+    _check_output_panorama(config, pano)
+    guide = (pano, config.surrogate_hw) if config.refine else ()
+    return sweep_grids(rig, candidates, cost_panorama(pano, config.output_stride),
+                       config.feature_hw, *guide)
 
 
 def coverage_note(config: ModelConfig, pano: Panorama) -> str | None:
@@ -205,109 +147,6 @@ def check_surrogates(config: ModelConfig, surrogates, masks, num_cameras: int) -
                          f"cameras, height, width); found {mshape}")
 
 
-def forward_surrogates(model: "OmniStereoNet", surrogates: Array, masks: Array,
-                       grids: Grids) -> dict:
-    """The network from surrogate images (B, N, Hs, Ws, 3) in [0, 1] and masks (B, N, Hm, Wm).
-
-    Only ``grids.sweep_px``, ``sweep_ok`` and ``candidates`` are read. Returns
-    ``inv_distance`` (B, H, W) 1/m, ``distance`` (B, H, W) m, ``prob`` (B, D, H, W), ``entropy``
-    (B, H, W) nats, ``logits`` (B, D, h, w) (the U-Net output) and ``valid`` (B, H, W) bool: the
-    cell is seen by at least two cameras (variance) or by every camera (concat) at every
-    candidate.
-    """
-    cfg = model.config
-    check_surrogates(cfg, surrogates, masks, grids.sweep_px.shape[0])
-    b, n, hs, ws, _ = surrogates.shape
-    dtype = surrogates.dtype
-    feats = model.features(surrogates.reshape(b * n, hs, ws, 3))
-    feats = feats.reshape(b, n, *feats.shape[1:])                   # (B, N, hf, wf, C)
-    sampled, cam_valid = sweep(feats, masks, grids, cfg.sweep_boundary)
-    volume = model.cost_volume(sampled, cam_valid.astype(dtype))
-    logits = model.unet(volume)
-    # The output is output_stride x the cost grid, whichever panorama the grids cover.
-    k = cfg.output_stride
-    h, w = logits.shape[2:4]
-    out = dict(regress(logits, grids.candidates.astype(dtype), (k * h, k * w)))
-    out["logits"] = logits
-    if cfg.refine:
-        out.update(_refined(model, surrogates, masks, grids, out, dtype))
-    needed = 2 if cfg.cost_volume == "variance" else n
-    # Float reductions: TensorRT reduces float tensors only (no integer / boolean ReduceSum).
-    seen_by = jnp.min(jnp.sum(cam_valid.astype(dtype), axis=1), axis=1)   # (B, h, w)
-    cell_ok = seen_by >= needed
-    out["valid"] = jnp.repeat(jnp.repeat(cell_ok, k, axis=1), k, axis=2)
-    return out
-
-
-def _refined(model: "OmniStereoNet", surrogates: Array, masks: Array, grids: Grids, out: dict,
-             dtype) -> dict:
-    """The guided refinement's outputs: ``inv_distance`` and ``distance`` refined, the
-    soft-argmax estimate kept as ``inv_distance_coarse``."""
-    if grids.guide_px is None:
-        raise ValueError(f"model {model.config.name!r} refines its estimate and needs the guide "
-                         f"grids (gijax.model.guide_grids) in its Grids")
-    b = surrogates.shape[0]
-    # Colours and masks of all samples in one gather per camera, at the surrogate's size.
-    sur_masks = masks
-    if tuple(masks.shape[2:4]) != tuple(surrogates.shape[2:4]):
-        raise ValueError(f"the guided refinement reads masks at the surrogates' size "
-                         f"{tuple(surrogates.shape[2:4])}; found {tuple(masks.shape[2:4])}")
-    stacked = _fold_batch(jnp.concatenate([surrogates, sur_masks[..., None].astype(dtype)], -1))
-    sampled = _unfold_batch(sample_sweep(stacked, grids.guide_px.astype(dtype),
-                                         model.config.sweep_boundary), b)  # (B, N, D, H, W, 4)
-    seen = (grids.guide_ok[None] & (sampled[..., 3] > MASK_THRESHOLD)).astype(dtype)
-    prob = jax.lax.stop_gradient(out["prob"])
-    guide = colour_guide(sampled[..., :3], seen, prob)
-    cand = grids.candidates.astype(dtype)
-    coarse = jax.lax.stop_gradient(out["inv_distance"])
-    inv = model.refine(coarse, jax.lax.stop_gradient(out["entropy"]), guide,
-                       (1.0 / cand[-1], 1.0 / cand[0]))
-    return {"inv_distance": inv, "distance": 1.0 / inv, "inv_distance_coarse": out["inv_distance"]}
-
-
-def _fold_batch(x: Array) -> Array:
-    """(B, N, H, W, C) -> (N, H, W, B C): one gather per camera serves the whole batch."""
-    b, n, h, w, c = x.shape
-    return jnp.transpose(x, (1, 2, 3, 0, 4)).reshape(n, h, w, b * c)
-
-
-def _unfold_batch(x: Array, b: int) -> Array:
-    """(N, ..., B C) -> (B, N, ..., C)."""
-    n, rest, bc = x.shape[0], x.shape[1:-1], x.shape[-1]
-    x = x.reshape(n, *rest, b, bc // b)
-    return jnp.moveaxis(x, -2, 0)
-
-
-def sweep(features: Array, masks: Array, grids: Grids, boundary: str) -> tuple[Array, Array]:
-    """Per-camera features (B, N, hf, wf, C) and masks (B, N, Hm, Wm) sampled at the sweep grid:
-    (B, N, D, h, w, C) and per-camera validity (B, N, D, h, w) bool (grid point valid and
-    sampled mask > :data:`MASK_THRESHOLD`)."""
-    b = features.shape[0]
-    dtype = features.dtype
-    coords = grids.sweep_px.astype(dtype)
-    swept = _unfold_batch(sample_sweep(_fold_batch(features), coords, boundary), b)
-    # The same directions in the mask's own pixels (as normalised grid_sample coordinates do).
-    mask_coords = rescale_pixels(coords, features.shape[2:4], masks.shape[2:4])
-    swept_mask = sample_sweep(jnp.moveaxis(masks.astype(dtype), 0, -1), mask_coords, boundary)
-    swept_mask = jnp.moveaxis(swept_mask, -1, 0)                     # (B, N, D, h, w)
-    return swept, grids.sweep_ok[None] & (swept_mask > MASK_THRESHOLD)
-
-
-def forward(model: "OmniStereoNet", images: Array, masks: Array, grids: Grids) -> dict:
-    """The network from raw fisheye images (B, N, h, w, 3) float RGB in [0, 1] and masks
-    (B, N, h, w) (1 = the pixel sees the world) at the model's image size; see
-    :func:`forward_surrogates` for the outputs. The model must be in the mode wanted (eval for
-    inference)."""
-    b = images.shape[0]
-    dtype = images.dtype
-    # Colours and mask of all samples in one gather per camera.
-    stacked = _fold_batch(jnp.concatenate([images, masks[..., None].astype(dtype)], axis=-1))
-    sampled, _ = resample_surrogates(grids.surrogate_px.astype(dtype), grids.surrogate_ok, stacked)
-    sampled = _unfold_batch(sampled, b)                              # (B, N, Hs, Ws, 4)
-    # Channel 3 is the resampled mask, already 0 outside the lens.
-    return forward_surrogates(model, sampled[..., :3], sampled[..., 3], grids)
-
-
 class OmniStereoNet(nnx.Module):
     """Omnidirectional stereo from N per-camera surrogate images (see the module docstring)."""
 
@@ -318,22 +157,86 @@ class OmniStereoNet(nnx.Module):
         self.unet = make_unet(config, rngs)
         self.refine = GuidedRefinement(config.num_candidates, rngs) if config.refine else None
 
-    def __call__(self, surrogates: Array, masks: Array, rig: Rig, candidates: Array,
-                 pano: Panorama | None = None) -> dict:
-        """surrogates (B, N, Hs, Ws, 3) in [0, 1], masks (B, N, Hm, Wm), candidates (D,) metres:
-        :func:`forward_surrogates` with the sweep grids of ``rig`` computed here for the output
-        panorama ``pano`` (static; default :func:`model_panorama`)."""
-        check_candidates(self.config, candidates)
-        found = tuple(np.shape(surrogates))[1:2]
-        if found != (rig.num_cameras,):
-            raise ValueError(f"the rig has {rig.num_cameras} cameras but "
-                             f"{found[0] if found else 'no'} surrogate images were given")
-        candidates = jnp.asarray(candidates, surrogates.dtype)
-        px, ok = sweep_grids(rig, candidates, self.config, pano)
-        guide = (guide_grids(rig, candidates, self.config, pano) if self.config.refine
-                 else (None, None))
-        grids = Grids(None, None, px, ok, candidates, *guide)
-        return forward_surrogates(self, surrogates, masks, grids)
+    def __call__(self, surrogates: Array, masks: Array, grids: SweepGrids) -> dict:
+        """The network from surrogate images (B, N, Hs, Ws, 3) in [0, 1], their masks
+        (B, N, Hm, Wm) and the sweep grids of the rig and candidates (:func:`model_grids`).
+
+        Returns ``inv_distance`` (B, H, W) 1/m, ``distance`` (B, H, W) m, ``prob``
+        (B, D, H, W), ``entropy`` (B, H, W) nats, ``logits`` (B, D, h, w) (the U-Net output)
+        and ``valid`` (B, H, W) bool: the cell is seen by at least two cameras (variance) or by
+        every camera (concat) at every candidate; with the guided refinement also
+        ``inv_distance_coarse``, the soft-argmax estimate before it. The model must be in the
+        mode wanted (eval for inference).
+        """
+        cfg = self.config
+        check_surrogates(cfg, surrogates, masks, grids.sweep_px.shape[0])
+        n = surrogates.shape[1]
+        dtype = surrogates.dtype
+        feats = self.extract_features(surrogates)
+        sampled, cam_valid = self.sweep(feats, masks, grids)
+        logits = self.unet_logits(self.build_cost_volume(sampled, cam_valid))
+        out = self.regress(logits, grids.candidates.astype(dtype))
+        if cfg.refine:
+            out.update(self.refined(surrogates, masks, grids, out))
+        needed = 2 if cfg.cost_volume == "variance" else n
+        # Float reductions: TensorRT reduces float tensors only (no integer / boolean ReduceSum).
+        seen_by = jnp.min(jnp.sum(cam_valid.astype(dtype), axis=1), axis=1)   # (B, h, w)
+        cell_ok = seen_by >= needed
+        k = cfg.output_stride
+        out["valid"] = jnp.repeat(jnp.repeat(cell_ok, k, axis=1), k, axis=2)
+        return out
+
+    def extract_features(self, surrogates: Array) -> Array:
+        """Surrogate images (B, N, Hs, Ws, 3) -> features (B, N, Hs/4, Ws/4, C), one extractor
+        shared by all cameras."""
+        b, n, hs, ws, _ = surrogates.shape
+        feats = self.features(surrogates.reshape(b * n, hs, ws, 3))
+        return feats.reshape(b, n, *feats.shape[1:])
+
+    def sweep(self, features: Array, masks: Array, grids: SweepGrids) -> tuple[Array, Array]:
+        """Features (B, N, hf, wf, C) and masks (B, N, Hm, Wm) at the sweep grids by
+        ``config.sweep_boundary``: (B, N, D, h, w, C) and the per-camera validity
+        (B, N, D, h, w) bool (:func:`gijax.sweep.grids.sweep_features`)."""
+        return sweep_features(features, masks, grids, self.config.sweep_boundary)
+
+    def build_cost_volume(self, sampled: Array, valid: Array) -> Array:
+        """Swept features (B, N, D, h, w, C) and their validity (B, N, D, h, w) -> the cost
+        volume (B, D, h, w, unet_in)."""
+        return self.cost_volume(sampled, valid.astype(sampled.dtype))
+
+    def unet_logits(self, volume: Array) -> Array:
+        """The cost volume (B, D, h, w, unet_in) -> the U-Net's logits (B, D, h, w)."""
+        return self.unet(volume)
+
+    def regress(self, logits: Array, candidates: Array) -> dict:
+        """Logits (B, D, h, w) and candidates (D,) metres -> the soft-argmax outputs at
+        ``output_stride`` x the cost grid (whichever panorama it covers): ``inv_distance``,
+        ``distance``, ``prob``, ``entropy`` and the ``logits`` themselves."""
+        k = self.config.output_stride
+        h, w = logits.shape[2:4]
+        out = dict(regress(logits, candidates.astype(logits.dtype), (k * h, k * w)))
+        out["logits"] = logits
+        return out
+
+    def refined(self, surrogates: Array, masks: Array, grids: SweepGrids, out: dict) -> dict:
+        """The guided refinement of the soft-argmax outputs ``out`` (:meth:`regress`), from the
+        cameras' colours at the guide grids: ``inv_distance`` and ``distance`` refined, the
+        soft-argmax estimate kept as ``inv_distance_coarse``."""
+        if self.refine is None:
+            raise ValueError(f"model {self.config.name!r} has no guided refinement")
+        if grids.guide_px is None:
+            raise ValueError(f"model {self.config.name!r} refines its estimate and needs the "
+                             f"guide grids in its sweep grids (gijax.model.model_grids)")
+        dtype = surrogates.dtype
+        colours, seen = sweep_colours(surrogates, masks, grids, self.config.sweep_boundary)
+        prob = jax.lax.stop_gradient(out["prob"])
+        guide = colour_guide(colours, seen, prob)
+        cand = grids.candidates.astype(dtype)
+        coarse = jax.lax.stop_gradient(out["inv_distance"])
+        inv = self.refine(coarse, jax.lax.stop_gradient(out["entropy"]), guide,
+                          (1.0 / cand[-1], 1.0 / cand[0]))
+        return {"inv_distance": inv, "distance": 1.0 / inv,
+                "inv_distance_coarse": out["inv_distance"]}
 
 
 def create_model(name_or_config: str | ModelConfig, seed: int = 0) -> OmniStereoNet:
@@ -349,6 +252,34 @@ def create_model(name_or_config: str | ModelConfig, seed: int = 0) -> OmniStereo
         raise ValueError(f"expected a preset name or a ModelConfig; found "
                          f"{type(name_or_config).__name__}")
     return OmniStereoNet(config, nnx.Rngs(seed))
+
+
+def count_parameters(config: ModelConfig | str) -> dict[str, int]:
+    """Trainable parameter counts {'features', 'cost', 'unet', 'total'} of the
+    :class:`OmniStereoNet` of a config or preset name (its feature extractor, cost-volume
+    builder and U-Net; the sweep and the regressor have none), from abstract shapes only (no
+    memory, no compilation)."""
+    if isinstance(config, str):
+        config = get_preset(config)
+    # Only the layer structure matters: presets differing in candidates, loss or sizes share it.
+    structural = dataclasses.replace(
+        config, name="", candidates="ev", loss="volume", mask_augmentation=False,
+        num_candidates=8, surrogate_hw=(32, 32), cost_hw=(8, 8), output_hw=(16, 16),
+        image_scale=1.0, d_min=0.5, d_max=100.0, conv3d="auto", refine=False, output_stride=2,
+    )
+    return dict(_count(structural))
+
+
+@functools.lru_cache(maxsize=32)
+def _count(config: ModelConfig) -> tuple[tuple[str, int], ...]:
+    model = nnx.eval_shape(lambda: OmniStereoNet(config, nnx.Rngs(0)))
+    counts = {
+        "features": param_count(model.features),
+        "cost": param_count(model.cost_volume),
+        "unet": param_count(model.unet),
+    }
+    counts["total"] = sum(counts.values())
+    return tuple(counts.items())
 
 
 def with_conv3d(model: OmniStereoNet, conv3d: str) -> OmniStereoNet:

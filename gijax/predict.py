@@ -12,9 +12,11 @@ from :func:`label_batches`.
 :func:`predict` has no side effects but is not traceable: it is the eager edge for one sample
 (numpy in, numpy out; inputs checked with errors that name them). Images of another size are
 handled by :func:`fit_images`, the one size policy of every method: resized when the aspect
-ratio is the rig's, refused otherwise. The traceable core is :func:`gijax.model.forward` with
-grids from :func:`gijax.model.make_grids`: raw images resampled to the model's surrogate
-images and run through the network in eval mode (BatchNorm running statistics).
+ratio is the rig's, refused otherwise. The traceable core is the network call on surrogate
+images: raw images resampled to the model's surrogate images
+(:func:`gijax.sweep.grids.fisheye_surrogates`), then ``model(surrogates, masks, grids)`` with
+the sweep grids of :func:`gijax.model.model_grids`, in eval mode (BatchNorm running
+statistics).
 :func:`write_prediction` writes the results: the distance panorama as float32 ``.npy``,
 colour-mapped PNGs with colour bars (distance and, for the learned model, uncertainty), the
 colour panorama ``rgb.png`` (each pixel the mean colour of its predicted point over the cameras
@@ -50,10 +52,11 @@ from gijax.geometry.panorama_frame import coverage_of, panorama_rays, panorama_r
 from gijax.data.images import fit_images
 from gijax.geometry.rig import Rig, project_rig_points
 from gijax.io.replace import FolderKind
-from gijax.model import (OmniStereoNet, check_candidates, coverage_note, forward, make_grids,
+from gijax.model import (OmniStereoNet, check_candidates, coverage_note, model_grids,
                          model_panorama, model_rig)
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
+from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
 from gijax.sweep.surrogate import as_float_image, check_images
 
 Array = jax.Array
@@ -61,7 +64,11 @@ Array = jax.Array
 
 @functools.partial(nnx.jit, static_argnames=("pano",))
 def _forward(model: OmniStereoNet, images, masks, rig, candidates, pano: Panorama):
-    return forward(model, images, masks, make_grids(rig, candidates, model.config, pano))
+    cfg = model.config
+    grids = model_grids(cfg, rig, candidates, pano)
+    surrogates, sur_masks = fisheye_surrogates(surrogate_resampling(rig, cfg.surrogate_hw),
+                                               images, masks)
+    return model(surrogates, sur_masks, grids)
 
 
 @functools.partial(jax.jit, static_argnames=("pano",))
@@ -271,22 +278,24 @@ class RtssPredictor:
 
 
 def learned_batch_predictor(model: OmniStereoNet, rig: Rig, candidates, pano: Panorama):
-    """``batch -> Prediction`` of a learned model on batches of surrogate images (``images``
-    (B, Ncam, Hs, Ws, 3), ``masks`` (B, Ncam, Hs, Ws), as :class:`gijax.data.Loader` yields
-    them) for the output panorama ``pano``; compiled once per batch shape. The network gives
-    an estimate at every pixel."""
+    """``batch -> Prediction`` of a learned model on batches of surrogate images
+    (``surrogates`` (B, Ncam, Hs, Ws, 3), ``masks`` (B, Ncam, Hs, Ws), as
+    :class:`gijax.data.Loader` yields them) for the output panorama ``pano``; compiled once
+    per batch shape. The network gives an estimate at every pixel."""
     graphdef, state = nnx.split(model)
 
     @jax.jit
-    def run(state, images, masks, rig, cand):
-        return nnx.merge(graphdef, state)(images, masks, rig, cand, pano)["inv_distance"]
+    def run(state, surrogates, masks, rig, cand):
+        model = nnx.merge(graphdef, state)
+        grids = model_grids(model.config, rig, cand, pano)
+        return model(surrogates, masks, grids)["inv_distance"]
 
     cand = jnp.asarray(candidates, jnp.float32)
     run_rig = model_rig(rig)
 
     def predict_batch(batch: dict) -> Prediction:
-        inv = run(state, jnp.asarray(batch["images"]), jnp.asarray(batch["masks"]), run_rig,
-                  cand)
+        inv = run(state, jnp.asarray(batch["surrogates"]), jnp.asarray(batch["masks"]),
+                  run_rig, cand)
         return Prediction(inv_distance=inv, valid=jnp.ones(inv.shape, bool))
 
     return predict_batch

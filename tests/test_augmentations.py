@@ -247,9 +247,9 @@ def test_loader_augments_training_but_not_validation(tmp_path):
     preset = AugmentConfig(p_colour=1.0, p_noise=1.0, p_body=1.0)
     with Loader(reader, augment=preset, **opts) as a, Loader(reader, augment=preset, **opts) as b:
         first, again = next(a), next(b)
-    assert np.abs(first["images"] - clean["images"]).mean() > 1e-3
+    assert np.abs(first["surrogates"] - clean["surrogates"]).mean() > 1e-3
     assert np.all(first["masks"] <= clean["masks"] + 1e-6)
-    np.testing.assert_array_equal(first["images"], again["images"])   # keyed, not timed
+    np.testing.assert_array_equal(first["surrogates"], again["surrogates"])   # keyed, not timed
     np.testing.assert_array_equal(first["distance"], clean["distance"])
     stream = dataset_stream_factory(reader, rig, 2, 4, (8, 32), augment=preset, workers=0)()
     try:
@@ -257,7 +257,7 @@ def test_loader_augments_training_but_not_validation(tmp_path):
     finally:
         stream.close()
     assert list(clean["index"]) == [0, 1]
-    same_samples = clean["images"][train_batch["index"]]
-    assert np.abs(train_batch["images"] - same_samples).mean() > 1e-3
+    same_samples = clean["surrogates"][train_batch["index"]]
+    assert np.abs(train_batch["surrogates"] - same_samples).mean() > 1e-3
     val = next(validation_batches(reader, rig, 2, (8, 32)))
-    np.testing.assert_array_equal(val["images"], clean["images"])
+    np.testing.assert_array_equal(val["surrogates"], clean["surrogates"])

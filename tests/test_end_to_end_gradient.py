@@ -18,8 +18,9 @@ from flax import nnx
 
 from gijax.geometry.layouts import TRAIN_BASELINE, synthetic_camera
 from gijax.geometry.rig import make_rig
-from gijax.model import create_model, forward, make_grids
+from gijax.model import create_model, model_grids
 from gijax.nn.presets import ModelConfig
+from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
 from gijax.train.losses import smooth_l1_loss
 
 TINY = ModelConfig(
@@ -61,9 +62,10 @@ def problem():
         def loss(positions, candidates):
             rig = make_rig(cams, jnp.tile(jnp.eye(3, dtype=jnp.float64), (3, 1, 1)), positions,
                            positions[0], dtype=jnp.float64)
-            grids = make_grids(rig, candidates, TINY)
-            out = forward(nnx.merge(graphdef, state), jnp.asarray(images), jnp.asarray(masks),
-                          grids)
+            grids = model_grids(TINY, rig, candidates)
+            sur, sur_masks = fisheye_surrogates(surrogate_resampling(rig, TINY.surrogate_hw),
+                                                jnp.asarray(images), jnp.asarray(masks))
+            out = nnx.merge(graphdef, state)(sur, sur_masks, grids)
             return smooth_l1_loss(out["inv_distance"], jnp.asarray(target), jnp.asarray(valid),
                                   candidates)
 

@@ -14,9 +14,9 @@ layers, never a unit of its own layer or a higher one:
  3  io                                         rig and calibration files, locks, output paths
  4  candidates                                 EV / GI candidate lists and specs
  5  sampling                                   the bilinear sampler
- 6  sweep                                      surrogate images and sweep grids
+ 6  sweep                                      surrogate images, sweep grids and their pytrees
  7  nn                                         network modules and presets
- 8  model                                      the whole network and its grids
+ 8  model                                      the whole network and its config-to-grid sizes
  9  render                                     procedural scenes and the ray caster
 10  evaluate                                   usable labels, metrics, the prediction type
                                                and the evaluation loop

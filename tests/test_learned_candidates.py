@@ -75,7 +75,7 @@ def _batch(seed=0, b=1, near=1.0, far=8.0):
     rng = np.random.default_rng(seed)
     hs, ws = TINY.surrogate_hw
     h, w = TINY.output_hw
-    return {"images": rng.uniform(0, 1, (b, 3, hs, ws, 3)),
+    return {"surrogates": rng.uniform(0, 1, (b, 3, hs, ws, 3)),
             "masks": np.ones((b, 3, hs, ws)),
             "distance": rng.uniform(near, far, (b, h, w)),
             "valid": np.ones((b, h, w), bool)}

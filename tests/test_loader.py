@@ -51,22 +51,22 @@ def test_batch_shapes_and_values(reader):
         batches = list(loader)
     assert len(batches) == N // 2 == len(loader)
     b = batches[0]
-    assert b["images"].shape == (2, 3, 8, 32, 3) and b["images"].dtype == np.float32
+    assert b["surrogates"].shape == (2, 3, 8, 32, 3) and b["surrogates"].dtype == np.float32
     assert b["masks"].shape == (2, 3, 8, 32) and b["masks"].dtype == np.float32
     assert b["distance"].shape == (2, 8, 32) and b["valid"].dtype == np.bool_
     # Resampled masks are fractional at mask edges (the forward thresholds them after the sweep).
     assert 0.0 <= b["masks"].min() and b["masks"].max() <= 1.0
     assert np.mean((b["masks"] > 0) & (b["masks"] < 1)) > 0
-    assert 0.0 <= b["images"].min() and b["images"].max() <= 1.0
+    assert 0.0 <= b["surrogates"].min() and b["surrogates"].max() <= 1.0
     # The loader's precomputed grids give what surrogate_images computes from scratch.
     s0 = reader[0]
     ref_i, ref_m = surrogate_images(reader.rig, s0["images"], s0["masks"], SURROGATE)
     np.testing.assert_allclose(b["masks"][0], np.asarray(ref_m), atol=1e-5)
-    np.testing.assert_allclose(b["images"][0], np.asarray(ref_i), atol=1e-4)
+    np.testing.assert_allclose(b["surrogates"][0], np.asarray(ref_i), atol=1e-4)
     # Sample 0 is a flat colour: every valid surrogate pixel has exactly that colour.
     m = b["masks"][0] > 0
     assert m.mean() > 0.3
-    np.testing.assert_allclose(b["images"][0][m], np.broadcast_to(np.array(CONST) / 255.0,
+    np.testing.assert_allclose(b["surrogates"][0][m], np.broadcast_to(np.array(CONST) / 255.0,
                                                                  (int(m.sum()), 3)), atol=1e-6)
     # Labels: exact copies of the stored panoramas; 0 m holes are not valid, sky (1e6) is.
     want = synthetic_sample(reader.rig, 1)["pano_distance"]

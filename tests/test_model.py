@@ -11,7 +11,7 @@ from flax import nnx
 
 from gijax.geometry.layouts import TRAIN_BASELINE, synthetic_camera
 from gijax.geometry.rig import make_rig
-from gijax.model import OmniStereoNet, create_model, with_conv3d
+from gijax.model import OmniStereoNet, create_model, model_grids, with_conv3d
 from gijax.nn.presets import ModelConfig
 from gijax.train.losses import volume_loss
 
@@ -55,7 +55,12 @@ def inputs(n, seed, batch=1, hw=(32, 128)):
     return jnp.asarray(sur), jnp.asarray(masks)
 
 
-forward = nnx.jit(lambda m, s, k, r, c: m(s, k, r, c))
+def run(model, sur, masks, rig, cand):
+    """The network on surrogates with the sweep grids of ``rig`` and ``cand``."""
+    return model(sur, masks, model_grids(model.config, rig, cand))
+
+
+forward = nnx.jit(run)
 
 
 pytestmark = pytest.mark.usefixtures("quick_compiles")
@@ -107,8 +112,6 @@ def test_output_stride_1_runs_the_same_weights_with_the_cost_volume_at_the_outpu
     are; the U-Net's logits come out at the output's size and the probabilities are their
     softmax (no upsampling), and a cell is valid where the coarse model's 2 x 2 block is,
     up to the cells along the coarse grid's edges of visibility."""
-    from gijax.model import sweep_grids
-
     fine_cfg = dataclasses.replace(TINY_VAR, name="tiny-fine", cost_hw=TINY_VAR.output_hw,
                                    output_stride=1)
     fine = create_model(fine_cfg, seed=9)
@@ -124,11 +127,70 @@ def test_output_stride_1_runs_the_same_weights_with_the_cost_volume_at_the_outpu
     logits = np.asarray(out["logits"], np.float64)
     e = np.exp(logits - logits.max(axis=1, keepdims=True))
     np.testing.assert_allclose(np.asarray(out["prob"]), e / e.sum(1, keepdims=True), atol=1e-6)
-    px, ok = sweep_grids(rig, jnp.asarray(G8), fine_cfg)
+    grids = model_grids(fine_cfg, rig, jnp.asarray(G8))
+    px, ok = grids.sweep_px, grids.sweep_ok
     assert px.shape == (3, 8, 16, 64, 2) and ok.shape == (3, 8, 16, 64)
     agree = np.mean(np.asarray(out["valid"]) == np.asarray(coarse["valid"]))
     assert agree > 0.9, agree
     assert np.asarray(out["valid"]).any() and np.all(np.isfinite(np.asarray(out["inv_distance"])))
+
+
+def test_model_grids_are_the_sweep_at_the_configs_sizes():
+    """``model_grids``: the sweep of the cost panorama (half the output, 8 x 32) into the
+    feature maps (a quarter of the 32 x 128 surrogates), the guide grids (the 16 x 64 output
+    into the surrogates) only with the refinement; the other coverage keeps the resolution."""
+    from gijax.geometry.panorama import Panorama
+    from gijax.model import model_panorama
+    from gijax.sweep.grid import sweep_grid
+    from gijax.sweep.grids import sweep_grids
+
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    cand = jnp.asarray(G8)
+    grids = model_grids(TINY_VAR, rig, cand)
+    px, ok = sweep_grid(rig, cand, Panorama.hemisphere(8, 32), Panorama.hemisphere(8, 32))
+    np.testing.assert_array_equal(np.asarray(grids.sweep_px), np.asarray(px))
+    np.testing.assert_array_equal(np.asarray(grids.sweep_ok), np.asarray(ok))
+    np.testing.assert_array_equal(np.asarray(grids.candidates), G8)
+    assert grids.guide_px is None and grids.guide_ok is None
+    refine = model_grids(dataclasses.replace(TINY_VAR, refine=True), rig, cand)
+    gpx, gok = sweep_grid(rig, cand, Panorama.hemisphere(16, 64), Panorama.hemisphere(32, 128))
+    assert refine.guide_px.shape == (3, 8, 16, 64, 2)
+    np.testing.assert_array_equal(np.asarray(refine.guide_px), np.asarray(gpx))
+    np.testing.assert_array_equal(np.asarray(refine.guide_ok), np.asarray(gok))
+    sphere = model_grids(TINY_VAR, rig, cand, model_panorama(TINY_VAR, "sphere"))
+    assert sphere.sweep_px.shape == (3, 8, 16, 32, 2)
+    with pytest.raises(ValueError, match="divisible by 16"):
+        model_grids(TINY_VAR, rig, cand, Panorama.hemisphere(12, 64))
+    with pytest.raises(ValueError, match="needs 8 candidates"):
+        model_grids(TINY_VAR, rig, cand[:4])
+    with pytest.raises(ValueError, match="both the output panorama and the surrogate size"):
+        sweep_grids(rig, cand, Panorama.hemisphere(8, 32), (8, 32), Panorama.hemisphere(16, 64))
+
+
+def test_fisheye_surrogates_equal_each_cameras_surrogate_image():
+    """A batch of raw fisheye images through the surrogate maps gives, per sample, what
+    ``surrogate_images`` computes camera by camera from the rig."""
+    from gijax.geometry.panorama import Panorama
+    from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
+    from gijax.sweep.surrogate import surrogate_images
+
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    rng = np.random.default_rng(6)
+    images = jnp.asarray(rng.uniform(size=(2, 3, 64, 64, 3)), jnp.float32)
+    # Every camera blind on a third of its image (a rig body), another third per sample.
+    masks = np.ones((2, 3, 64, 64), np.float32)
+    masks[0, :, :, :21] = 0.0
+    masks[1, :, 40:] = 0.0
+    masks = jnp.asarray(masks)
+    sur, sur_masks = fisheye_surrogates(surrogate_resampling(rig, (32, 128)), images, masks)
+    assert sur.shape == (2, 3, 32, 128, 3) and sur_masks.shape == (2, 3, 32, 128)
+    for b in range(2):
+        want, want_masks = surrogate_images(rig, images[b], masks[b], Panorama.hemisphere(32, 128))
+        np.testing.assert_allclose(np.asarray(sur[b]), np.asarray(want), atol=1e-4)
+        np.testing.assert_allclose(np.asarray(sur_masks[b]), np.asarray(want_masks), atol=1e-4)
+        assert 0.3 < float(jnp.mean(sur_masks[b] > 0)) < 0.9
 
 
 def test_candidates_swap_without_touching_weights(variance_model):
@@ -153,13 +215,13 @@ def test_jit_equals_eager(variance_model):
     # Unmasked: a camera counts where its sampled mask is > 0, so at a mask edge a sweep point
     # on a pixel centre flips with the last bit of its coordinate; that is not what is compared.
     m = jnp.ones(sur.shape[:4], jnp.float32)
-    eager = variance_model(sur, m, rig, jnp.asarray(G8))
+    eager = run(variance_model, sur, m, rig, jnp.asarray(G8))
     # Compiled as in use (the module's quick compiles skip XLA's optimisation passes, whose
     # absence changes this untrained net's tiny logits by more than float rounding).
     previous = jax.config.read("jax_disable_most_optimizations")
     jax.config.update("jax_disable_most_optimizations", False)
     try:
-        jitted = nnx.jit(lambda mod, *a: mod(*a))(variance_model, sur, m, rig, jnp.asarray(G8))
+        jitted = nnx.jit(run)(variance_model, sur, m, rig, jnp.asarray(G8))
     finally:
         jax.config.update("jax_disable_most_optimizations", previous)
     for key in ("inv_distance", "prob", "entropy"):
@@ -198,7 +260,7 @@ def test_every_parameter_gets_a_finite_nonzero_gradient():
     @nnx.jit
     def grads(model):
         def loss_fn(model):
-            out = model(sur, m, rig, cand)
+            out = run(model, sur, m, rig, cand)
             return volume_loss(out["prob"], target, label_ok, cand)
         return nnx.grad(loss_fn)(model)
 
@@ -288,12 +350,12 @@ def test_bad_inputs_raise_before_computing(variance_model):
     ]
     for args, msg in cases:
         with pytest.raises(ValueError, match=msg):
-            variance_model(*args)
+            run(variance_model, *args)
     concat = create_model(TINY_CAT)
     pos4 = np.concatenate([pos, [[0.25, 0.2, 0.0]]])
     sur4, m4 = inputs(4, 0)
     with pytest.raises(ValueError, match="concatenates exactly 3 cameras"):
-        concat(sur4, m4, rig_from(pos4, pos[0]), cand)
+        run(concat, sur4, m4, rig_from(pos4, pos[0]), cand)
     with pytest.raises(ValueError, match="unknown model preset"):
         create_model("G17")
     with pytest.raises(ValueError, match="preset name or a ModelConfig"):
@@ -356,7 +418,7 @@ def test_guided_refinement_starts_as_the_identity_and_trains_only_itself():
     graphdef, params, rest = nnx.split(model, nnx.Param, ...)
 
     def refine_loss(p):
-        o = nnx.merge(graphdef, p, rest)(sur, m, rig, cand)
+        o = run(nnx.merge(graphdef, p, rest), sur, m, rig, cand)
         return smooth_l1_loss(o["inv_distance"], distance, valid, cand)
 
     grads = nnx.to_pure_dict(jax.jit(jax.grad(refine_loss))(params))

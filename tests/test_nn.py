@@ -24,16 +24,15 @@ from gijax.nn import (
     ConcatCostVolume,
     FeatureExtractor,
     ModelConfig,
-    NetworkParts,
     UNet3D,
     VarianceCostVolume,
-    count_parameters,
     get_preset,
     masked_variance,
     regress,
     tangent_offsets,
     upsample2,
 )
+from gijax.model import OmniStereoNet, count_parameters
 from gijax.nn.layers import Conv3D, kernel_init
 from gijax.nn.spherical import gather_taps, sampling_tables
 from gijax.sampling import bilinear_sample
@@ -552,16 +551,16 @@ def _small(name: str) -> ModelConfig:
                                output_hw=(16, 32))
 
 
-def _pipeline(parts: NetworkParts, cfg: ModelConfig, images, coords, valid, cand):
-    """features -> stand-in sweep (bilinear sampling at fixed coordinates) -> cost -> U-Net."""
-    b, n = images.shape[:2]
-    feats = parts.features(images.reshape(b * n, *images.shape[2:]))
-    feats = feats.reshape(b, n, *feats.shape[1:])
+def _pipeline(model: OmniStereoNet, images, coords, valid, cand):
+    """The network's stages, with a stand-in sweep (bilinear sampling at fixed coordinates):
+    features -> sweep -> cost volume -> U-Net -> regression."""
+    b = images.shape[0]
+    feats = model.extract_features(images)
     sample = jax.vmap(jax.vmap(lambda im, c, v: bilinear_sample(im, c, v)[0],
                                in_axes=(0, 0, 0)), in_axes=(0, None, None))
     swept = sample(feats, coords, valid)
-    vol = parts.cost(swept, jnp.broadcast_to(valid, (b, *valid.shape)))
-    return regress(parts.unet(vol), cand, cfg.output_hw)
+    vol = model.build_cost_volume(swept, jnp.broadcast_to(valid, (b, *valid.shape)))
+    return model.regress(model.unet_logits(vol), cand)
 
 
 def _inputs(cfg: ModelConfig, b: int = 2):
@@ -581,18 +580,18 @@ def test_spherical_cpu_parts_jit_equals_eager_and_all_gradients_finite_nonzero()
     non-zero gradient to every parameter."""
     # Native 3-D convs: the same numbers as the CPU's split lowering, faster to compile.
     cfg = dataclasses.replace(_small("G16VV-cpu"), conv3d="native")
-    parts = NetworkParts(cfg, nnx.Rngs(11))
-    parts.train()
+    model = OmniStereoNet(cfg, nnx.Rngs(11))
+    model.train()
     images, coords, valid, cand = _inputs(cfg)
     target = jnp.asarray(np.random.default_rng(12).uniform(0.05, 1.5, (2, *cfg.output_hw)),
                          jnp.float32)
     flat = images.reshape(-1, *cfg.surrogate_hw, 3)
-    eager_features = np.asarray(parts.features(flat))
+    eager_features = np.asarray(model.features(flat))
 
-    graphdef, state = nnx.split(parts)
+    graphdef, state = nnx.split(model)
 
     def loss_fn(model, imgs):
-        out = _pipeline(model, cfg, imgs, coords, valid, cand)
+        out = _pipeline(model, imgs, coords, valid, cand)
         loss = jnp.mean((out["inv_distance"] - target) ** 2) + 1e-3 * jnp.mean(out["entropy"])
         return loss, (model.features(imgs.reshape(flat.shape)), out)
 
@@ -603,7 +602,7 @@ def test_spherical_cpu_parts_jit_equals_eager_and_all_gradients_finite_nonzero()
     # No LLVM optimisation: the same numbers, a third of the compile time.
     (loss, (jit_features, out)), grads = jax.jit(
         step, compiler_options={"xla_backend_optimization_level": 0})(state, images)
-    params = nnx.state(parts, nnx.Param)
+    params = nnx.state(model, nnx.Param)
     assert eager_features.shape == (6, *cfg.feature_hw, cfg.feature_channels)
     np.testing.assert_allclose(np.asarray(jit_features), eager_features, rtol=1e-4, atol=1e-5)
     assert np.isfinite(float(loss)) and np.all(np.isfinite(np.asarray(out["distance"])))

@@ -262,7 +262,7 @@ def test_partitions_and_loader(tree):
                     shuffle=False)
     batch = next(loader)
     loader.close()
-    assert batch["images"].shape == (2, 3, 8, 32, 3)
+    assert batch["surrogates"].shape == (2, 3, 8, 32, 3)
     np.testing.assert_array_equal(batch["distance"], np.float32(7.25))
 
 

@@ -5,8 +5,8 @@ released network's state dict with random weights and BatchNorm statistics, its 
 and every intermediate output, for three variants: the released G16V at full width (plain
 features, masked variance, U-Net in16/f32), a concat model, and a spherical-feature (G16VV)
 model. Each test loads the state dict into gijax through the weight import and feeds the
-fixture's own sweep grids through :func:`gijax.model.forward_surrogates`, the forward every
-gijax path uses.
+fixture's own sweep grids (a :class:`gijax.sweep.grids.SweepGrids`) through the network call
+``model(surrogates, masks, grids)``, the one every gijax path uses.
 """
 
 from __future__ import annotations
@@ -20,11 +20,12 @@ import numpy as np
 import pytest
 from flax import nnx
 
-from gijax.model import Grids, OmniStereoNet, forward_surrogates, sweep
+from gijax.model import OmniStereoNet
 from gijax.nn.presets import ModelConfig
 from gijax.nn.release_weights import RELEASE_BF, convert_state_dict, load_state_dict
 from gijax.nn.spherical import release_offsets
 from gijax.sweep.grid import normalised_from_pixels, pixels_from_normalised
+from gijax.sweep.grids import SweepGrids
 from gijax.train.losses import volume_loss
 
 FIXTURES = Path(os.environ.get(
@@ -56,11 +57,11 @@ def load_fixture(name: str):
     return meta, data, sd
 
 
-def fixture_grids(meta: dict, data: dict) -> Grids:
+def fixture_grids(meta: dict, data: dict) -> SweepGrids:
     hf, wf = meta["feature_hw"]
     px = pixels_from_normalised(jnp.asarray(data["grids"][0]), hf, wf)
-    return Grids(None, None, px, jnp.asarray(data["grid_masks"][0, ..., 0]),
-                 jnp.asarray(data["candidates"], jnp.float32))
+    return SweepGrids(px, jnp.asarray(data["grid_masks"][0, ..., 0]),
+                      jnp.asarray(data["candidates"], jnp.float32))
 
 
 def rel_err(found, expected) -> float:
@@ -81,17 +82,15 @@ def test_network_matches_release(name):
     imgs = jnp.asarray(data["imgs"]).transpose(0, 1, 3, 4, 2)     # (B, N, H, W, 3)
     masks = jnp.asarray(data["masks"])[:, :, 0]                    # feature resolution
     grids = fixture_grids(meta, data)
-    b, n = imgs.shape[:2]
 
     # Compiled, not op by op: one program per stage compiles faster than the network's ops
     # one at a time, and it is the form every user runs.
     @nnx.jit
     def stages(model, imgs, masks, grids):
-        feats = model.features(imgs.reshape(b * n, *imgs.shape[2:]))
-        feats = feats.reshape(b, n, *meta["feature_hw"], -1)
-        sampled, cam_valid = sweep(feats, masks, grids, config.sweep_boundary)
-        volume = model.cost_volume(sampled, cam_valid.astype(feats.dtype))
-        return feats, volume, forward_surrogates(model, imgs, masks, grids)
+        feats = model.extract_features(imgs)
+        sampled, cam_valid = model.sweep(feats, masks, grids)
+        volume = model.build_cost_volume(sampled, cam_valid)
+        return feats, volume, model(imgs, masks, grids)
 
     feats, volume, out = stages(model, imgs, masks, grids)
     assert rel_err(feats, data["features"].transpose(0, 1, 3, 4, 2)) < RTOL
@@ -114,7 +113,7 @@ def test_bgr_weights_take_rgb_images():
     model = OmniStereoNet(config, nnx.Rngs(0))
     load_state_dict(model, sd, input_order="bgr")
     as_bgr = jnp.asarray(data["imgs"][:, :, ::-1]).transpose(0, 1, 3, 4, 2)
-    feats = model.features(as_bgr.reshape(-1, *as_bgr.shape[2:]))
+    feats = model.extract_features(as_bgr)
     expected = data["features"].transpose(0, 1, 3, 4, 2).reshape(feats.shape)
     assert rel_err(feats, expected) < RTOL
 
@@ -177,8 +176,7 @@ def test_import_weights_cli_makes_a_bundle_that_runs_like_the_release(tmp_path):
     # replaced by it: exact up to the float32 the bundle keeps.
     np.testing.assert_allclose(candidates, data["candidates"], rtol=1e-7)
     rgb = jnp.asarray(data["imgs"][:, :, ::-1]).transpose(0, 1, 3, 4, 2)
-    out_ = forward_surrogates(model, rgb, jnp.asarray(data["masks"])[:, :, 0],
-                              fixture_grids(meta, data))
+    out_ = model(rgb, jnp.asarray(data["masks"])[:, :, 0], fixture_grids(meta, data))
     assert rel_err(out_["inv_distance"] * RELEASE_BF, data["inv_dist_bf"][:, 0]) < RTOL
 
     # A structure that does not fit is one error listing the problems, and writes nothing.

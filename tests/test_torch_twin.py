@@ -145,7 +145,7 @@ def test_twin_matches_gijax_forward_on_the_same_weights(preset):
     from flax import nnx
 
     from gijax.bench.torch_twin import model_loss
-    from gijax.model import Grids, forward_surrogates, sweep
+    from gijax.sweep.grids import SweepGrids
     from gijax.train.losses import model_loss as gijax_loss
 
     config = _tiny(preset)
@@ -157,18 +157,16 @@ def test_twin_matches_gijax_forward_on_the_same_weights(preset):
         dist = torch.from_numpy(inputs["distance"])
         loss_t = model_loss(twin, out_t, dist, torch.from_numpy(inputs["valid"]))
 
-    grids = Grids(None, None, jnp.asarray(inputs["sweep_px"]), jnp.asarray(inputs["grid_ok"]),
-                  jnp.asarray(inputs["candidates"], jnp.float32))
+    grids = SweepGrids(jnp.asarray(inputs["sweep_px"]), jnp.asarray(inputs["grid_ok"]),
+                       jnp.asarray(inputs["candidates"], jnp.float32))
     sur, masks = jnp.asarray(inputs["surrogates"]), jnp.asarray(inputs["masks"])
-    b, n = sur.shape[:2]
 
     @nnx.jit
     def run(model, sur, masks, grids):
-        feats = model.features(sur.reshape(b * n, *sur.shape[2:]))
-        feats = feats.reshape(b, n, *feats.shape[1:])
-        swept, ok = sweep(feats, masks, grids, config.sweep_boundary)
-        volume = model.cost_volume(swept, ok.astype(feats.dtype))
-        out = forward_surrogates(model, sur, masks, grids)
+        feats = model.extract_features(sur)
+        swept, ok = model.sweep(feats, masks, grids)
+        volume = model.build_cost_volume(swept, ok)
+        out = model(sur, masks, grids)
         loss = gijax_loss(config.loss, out, jnp.asarray(inputs["distance"]),
                           jnp.asarray(inputs["valid"]), grids.candidates)
         return feats, volume, out, loss, jnp.mean(ok)
@@ -216,7 +214,7 @@ def _check_training_step():
     tx = optax.adam(1e-4)
     step = jax.jit(S.build_train_step(tdef, tx, config.loss))
     state = S.init_state(params, rest, tx)
-    batch = {"images": jnp.asarray(inputs["surrogates"]), "masks": jnp.asarray(inputs["masks"]),
+    batch = {"surrogates": jnp.asarray(inputs["surrogates"]), "masks": jnp.asarray(inputs["masks"]),
              "distance": jnp.asarray(inputs["distance"]), "valid": jnp.asarray(inputs["valid"])}
     cand = jnp.asarray(inputs["candidates"], jnp.float32)
     state, info1 = step(state, batch, rig, cand)

@@ -202,10 +202,9 @@ def test_grad_accum_and_bf16_step_agree_with_plain_step():
     import jax.numpy as jnp
     from flax import nnx
 
-    from gijax.model import create_model
+    from gijax.model import create_model, model_grids, model_rig
     from gijax.train import step as S
     from gijax.train.losses import model_loss
-    from gijax.model import model_rig
 
     cfg = _config()
     mc = cfg.model_config()
@@ -219,7 +218,8 @@ def test_grad_accum_and_bf16_step_agree_with_plain_step():
     @jax.jit
     def sample_loss(params, rest, batch):
         model = nnx.merge(tdef, params, jax.tree.map(lambda x: x, rest))
-        out = model(batch["images"].astype(jnp.float32), batch["masks"], rig, cand)
+        out = model(batch["surrogates"].astype(jnp.float32), batch["masks"],
+                    model_grids(mc, rig, cand))
         return model_loss(mc.loss, out, batch["distance"], batch["valid"], cand)
 
     per_sample = np.mean([float(sample_loss(params, rest, {k: v[i:i + 1] for k, v in
@@ -276,10 +276,10 @@ def test_learned_candidate_list_trains_is_saved_and_is_what_the_run_predicts_wit
 
 
 def _source(batch: dict, arrays: list) -> int:
-    """Which of ``arrays`` every sample of ``batch`` comes from (by its images)."""
-    imgs = np.asarray(batch["images"])
+    """Which of ``arrays`` every sample of ``batch`` comes from (by its surrogates)."""
+    imgs = np.asarray(batch["surrogates"])
     owners = {i for x in imgs for i, a in enumerate(arrays)
-              if any(np.array_equal(x, y) for y in a["images"])}
+              if any(np.array_equal(x, y) for y in a["surrogates"])}
     assert len(owners) == 1, owners
     return owners.pop()
 
@@ -304,7 +304,7 @@ def test_mixed_stream_draws_in_proportion_and_resumes_exactly():
     resumed = make(json.loads(json.dumps(part.state())))
     for x, y in zip(full[17:], (next(resumed) for _ in range(43))):
         assert x[RIG_KEY] == y[RIG_KEY]
-        np.testing.assert_array_equal(x["images"], y["images"])
+        np.testing.assert_array_equal(x["surrogates"], y["surrogates"])
     with pytest.raises(ValueError, match="saved for 1 training datasets; this run has 2"):
         make({"step": 0, "streams": [None]})
     with pytest.raises(ValueError, match="positive weight"):
@@ -326,7 +326,7 @@ def test_each_batch_of_mixed_datasets_is_trained_with_its_own_rig(tmp_path):
     inner, seen = t._step, []
 
     def spy(state, batch, rig, cand):
-        seen.append((_source({"images": np.asarray(batch["images"])}, [a, b]),
+        seen.append((_source({"surrogates": np.asarray(batch["surrogates"])}, [a, b]),
                      np.asarray(rig.translations)))
         return inner(state, batch, rig, cand)
 
@@ -423,7 +423,7 @@ def test_non_finite_loss_stops_the_run_before_it_is_saved(tmp_path):
             self.n += 1
             batch = dict(next(self.inner))
             if self.n == 3:
-                batch["images"] = np.full_like(batch["images"], np.nan)
+                batch["surrogates"] = np.full_like(batch["surrogates"], np.nan)
             return batch
 
         def state(self):

@@ -31,7 +31,7 @@ def tiny_arrays(n=6, seed=0):
     cols = np.linspace(0, 2 * np.pi, 64, endpoint=False)
     rows = np.linspace(0, 1, 16)[:, None]
     dist = np.stack([1.0 + 0.6 * np.sin(cols + k) * rows + 0.2 * k for k in range(n)])
-    return {"images": images, "masks": np.ones((n, 3, 32, 128), np.float32),
+    return {"surrogates": images, "masks": np.ones((n, 3, 32, 128), np.float32),
             "distance": dist.astype(np.float32), "valid": np.ones((n, 16, 64), bool)}
 
 

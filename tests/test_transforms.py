@@ -44,7 +44,7 @@ from gijax.geometry import cameras, field_of_view, occluder, panorama, rig as ri
 from gijax.geometry import panorama_frame
 from gijax.geometry.panorama import Panorama
 from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
-from gijax.sweep import consistency, grid, sample, surrogate
+from gijax.sweep import consistency, grid, grids, sample, surrogate
 from gijax.calibrate import refine as calib_refine
 from gijax.nn import cost_volume, layers, refine, regressor, spherical, upsample
 from gijax.evaluate import labels, metrics
@@ -125,6 +125,7 @@ NOT_TRACED = {
     "gijax.geometry.panorama_frame.describe_choice": "text report",
     "gijax.geometry.panorama_frame.panorama_of": "a static panorama from static sizes",
     "gijax.geometry.panorama_frame.coverage_of": "a name from a static panorama",
+    "gijax.sweep.grids.cost_panorama": "a static panorama from a static panorama",
     "gijax.design.constraints.constraint_report": "plain-Python summary",
     "gijax.design.figure.plot_design": "writes a PNG",
     "gijax.design.optimize.terms_to_python": "floats and lists for reports",
@@ -176,7 +177,6 @@ NOT_TRACED = {
     # modules themselves are checked under jit and grad in test_nn.py and test_model.py)
     "gijax.nn.build.make_cost_volume": "builds a module from a config",
     "gijax.nn.build.make_unet": "builds a module from a config",
-    "gijax.nn.build.count_parameters": "Python ints of a config",
     "gijax.nn.layers.batch_norm": "builds a module",
     "gijax.nn.layers.conv": "builds a module",
     "gijax.nn.layers.param_count": "Python int of a module",
@@ -875,6 +875,79 @@ def _as_float_image(seed):
       diff=(0, 1))
 def _surrogate_images(seed):
     return small_rig(seed), jnp.stack([image(seed), image(seed + 1)])
+
+
+# The network's grids: a 2 x 4 cost panorama into 4 x 8 feature maps, the guide over the 4 x 8
+# output panorama into 16 x 32 surrogates.
+OUTPUT_PANO = Panorama.hemisphere(4, 8)
+SURROGATE_HW = (16, 32)
+
+
+@case(grids.surrogate_resampling, call=lambda r: grids.surrogate_resampling(r, PANO.shape),
+      diff=(0,))
+def _surrogate_resampling(seed):
+    return (small_rig(seed),)
+
+
+@case(grids.guide_grids, call=lambda r, c: grids.guide_grids(r, c, OUTPUT_PANO, SURROGATE_HW),
+      diff=(0, 1))
+def _guide_grids(seed):
+    return small_rig(seed), candidates(seed)
+
+
+@case(grids.sweep_grids, call=lambda r, c: grids.sweep_grids(r, c, PANO, FEATURE_PANO.shape),
+      diff=(0, 1),
+      degenerate=[("no coverage", lambda: (coincident_rig(), candidates(0)), False)])
+def _sweep_grids(seed):
+    return small_rig(seed), candidates(seed)
+
+
+@case(grids.sweep_grids, call=lambda r, c: grids.sweep_grids(
+    r, c, PANO, FEATURE_PANO.shape, OUTPUT_PANO, SURROGATE_HW), diff=(0, 1),
+      label="sweep_grids[guide]")
+def _sweep_grids_guide(seed):
+    return small_rig(seed), candidates(seed)
+
+
+@case(grids.fisheye_surrogates, call=lambda px, ok, im, m: grids.fisheye_surrogates(
+    grids.SurrogateMaps(px, ok), im, m), diff=(0, 2, 3))
+def _fisheye_surrogates(seed):
+    maps = surrogate.surrogate_maps(small_rig(seed), PANO)
+    images = jnp.stack([jnp.stack([image(seed + 2 * i), image(seed + 2 * i + 1)])
+                        for i in range(2)])
+    masks = jnp.stack([jnp.stack([image(seed + 5 + 2 * i, c=1)[..., 0],
+                                  image(seed + 6 + 2 * i, c=1)[..., 0]]) for i in range(2)])
+    return maps[0], maps[1], images, masks
+
+
+def _swept(px, ok, cand, features, masks, boundary):
+    return grids.sweep_features(features, masks, grids.SweepGrids(px, ok, cand), boundary)
+
+
+def _sweep_features_args(seed):
+    px, ok = grid.sweep_grid(small_rig(seed), candidates(seed), PANO, FEATURE_PANO)
+    rng = np.random.default_rng(70 + seed)
+    features = jnp.asarray(rng.normal(size=(2, 2, *FEATURE_PANO.shape, 3)), F64)
+    # Masks at twice the feature size: their coordinates are rescaled to it.
+    masks = jnp.asarray(rng.uniform(-0.5, 1.0, (2, 2, 8, 16)), F64)
+    return px, ok, candidates(seed), features, masks
+
+
+for _boundary in ("zeros", "wrap"):
+    case(grids.sweep_features, call=functools.partial(
+        lambda b, px, ok, c, f, m: _swept(px, ok, c, f, m, b), _boundary), diff=(0, 3),
+         label=f"sweep_features[{_boundary}]")(_sweep_features_args)
+
+
+@case(grids.sweep_colours, call=lambda px, ok, c, sur, m: grids.sweep_colours(
+    sur, m, grids.SweepGrids(px, ok, c, px, ok)), diff=(0, 3, 4))
+def _sweep_colours(seed):
+    # Grids of the output panorama in surrogate pixels serve as both sweep and guide grids.
+    px, ok = grids.guide_grids(small_rig(seed), candidates(seed), OUTPUT_PANO, SURROGATE_HW)
+    rng = np.random.default_rng(80 + seed)
+    sur = jnp.asarray(rng.uniform(size=(2, 2, *SURROGATE_HW, 3)), F64)
+    masks = jnp.asarray(rng.uniform(0.2, 1.0, (2, 2, *SURROGATE_HW)), F64)
+    return px, ok, candidates(seed), sur, masks
 
 
 @case(consistency.view_dispersion, diff=(0, 1),

@@ -98,7 +98,7 @@ def peer_inputs(config, batch: int, seed: int = 0) -> dict[str, np.ndarray]:
     spherical features, the release's tap ``offsets`` (hf, wf, 9, 2)."""
     from gijax.bench.rigs import network_inputs, network_rig
     from gijax.geometry.layouts import builtin_rig
-    from gijax.model import sweep_grids
+    from gijax.model import model_grids
     from gijax.nn.spherical import release_offsets
     from gijax.sweep.grid import normalised_from_pixels
 
@@ -107,7 +107,8 @@ def peer_inputs(config, batch: int, seed: int = 0) -> dict[str, np.ndarray]:
         raise ValueError(f"the benchmark rig has {rig.num_cameras} cameras; {config.name} "
                          f"needs {config.num_cameras}")
     sur, masks, cand = network_inputs(config, rig.num_cameras, batch, seed)
-    px, ok = sweep_grids(rig, cand, config)
+    grids = model_grids(config, rig, cand)
+    px, ok = grids.sweep_px, grids.sweep_ok
     hf, wf = config.feature_hw
     h, w = config.output_hw
     rng = np.random.default_rng(seed)

@@ -52,7 +52,7 @@ def train_step_case(preset: str, batch: int, overrides: dict | None = None) -> T
     sur, masks, cand = network_inputs(mc, rig.num_cameras, batch)
     h, w = mc.output_hw
     rng = np.random.default_rng(0)
-    batch_np = {"images": np.asarray(sur), "masks": np.asarray(masks),
+    batch_np = {"surrogates": np.asarray(sur), "masks": np.asarray(masks),
                 "distance": rng.uniform(0.5, 20, (batch, h, w)).astype(np.float32),
                 "valid": np.ones((batch, h, w), bool)}
 

@@ -62,8 +62,8 @@ _resample = jax.jit(resample_surrogates)
 class Loader:
     """Iterator of training batches (dicts of numpy arrays).
 
-    Each batch: ``images`` float32 (B, Ncam, Hs, Ws, 3) surrogate RGB in [0, 1], 0 where invalid;
-    ``masks`` float32 (B, Ncam, Hs, Ws) in {0, 1}; ``distance`` float32 (B, Hp, Wp) metres;
+    Each batch: ``surrogates`` float32 (B, Ncam, Hs, Ws, 3) surrogate RGB in [0, 1], 0 where
+    invalid; ``masks`` float32 (B, Ncam, Hs, Ws) in {0, 1}; ``distance`` float32 (B, Hp, Wp) metres;
     ``valid`` bool (B, Hp, Wp); ``index`` int64 (B,) dataset indices.
 
     Args:
@@ -210,7 +210,7 @@ class Loader:
                     for cam, im, m in zip(self.rig.cameras, images, masks)]
             sur, smask = np.stack([o[0] for o in outs]), np.stack([o[1] for o in outs])
         distance = np.asarray(sample["pano_distance"], np.float32)
-        return {"images": np.asarray(sur, np.float32),
+        return {"surrogates": np.asarray(sur, np.float32),
                 "masks": np.asarray(smask, np.float32),
                 "distance": distance, "valid": usable_label(distance), "index": int(index)}
 

@@ -1,10 +1,11 @@
 """What the exported graph is built from, besides the network itself.
 
-The exported function is :func:`gijax.model.forward` (raw fisheye images, masks and
-:class:`gijax.model.Grids` -> inverse distance) with grids from :func:`gijax.model.make_grids`,
-either evaluated once, eagerly, and baked into the file as constants (a fixed rig: the engine
-only gathers), or computed inside the exported function from rig inputs. This module holds the
-second case's pieces: the rig as plain arrays and back.
+The exported function is the network on raw fisheye images (their surrogate images by
+:func:`gijax.sweep.grids.fisheye_surrogates`, then ``model(surrogates, masks, grids)``), with
+the :class:`gijax.sweep.grids.SurrogateMaps` and the sweep grids of
+:func:`gijax.model.model_grids` either evaluated once, eagerly, and baked into the file as
+constants (a fixed rig: the engine only gathers), or computed inside the exported function
+from rig inputs. This module holds the second case's pieces: the rig as plain arrays and back.
 """
 
 from __future__ import annotations

@@ -32,6 +32,7 @@ lowered to the oldest one that carries the opset (TensorRT 8.5's parser reads IR
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import os
@@ -50,8 +51,9 @@ from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, scale_rig
 from gijax.io.paths import atomic_path
-from gijax.model import (OmniStereoNet, check_candidates, forward, make_grids, model_panorama,
+from gijax.model import (OmniStereoNet, check_candidates, model_grids, model_panorama,
                          with_conv3d)
+from gijax.sweep.grids import SurrogateMaps, SweepGrids, fisheye_surrogates, surrogate_resampling
 
 IMAGES, MASKS = "images", "masks"
 RIG_INPUTS = ("intrinsics", "rotations", "translations", "reference", "candidates")
@@ -107,7 +109,17 @@ def _input_specs(cfg, rig: Rig, batch, rig_as_input: bool):
     return specs
 
 
-_grids_jit = jax.jit(make_grids, static_argnums=(2, 3))
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _grids_jit(config, rig: Rig, candidates, pano: Panorama) -> tuple[SurrogateMaps, SweepGrids]:
+    return surrogate_resampling(rig, config.surrogate_hw), model_grids(config, rig, candidates,
+                                                                       pano)
+
+
+def _raw_forward(model: OmniStereoNet, images, masks, maps: SurrogateMaps,
+                 grids: SweepGrids) -> dict:
+    """The network on raw fisheye images: their surrogates, then the network call."""
+    surrogates, sur_masks = fisheye_surrogates(maps, images, masks)
+    return model(surrogates, sur_masks, grids)
 
 
 def _outputs(out: dict) -> tuple:
@@ -127,18 +139,20 @@ def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: boo
     if not rig_as_input:
         cand = jnp.asarray(candidates, jnp.float32)
         # Evaluated once, eagerly: the engine receives the grids as constants.
-        grids = jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)),
-                                       _grids_jit(rig, cand, cfg, pano))
+        maps, grids = jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)),
+                                             _grids_jit(cfg, rig, cand, pano))
 
         def fn(images, masks):
-            return _outputs(forward(model, images, masks, grids))
+            return _outputs(_raw_forward(model, images, masks, maps, grids))
 
         return fn
     intrinsics_layout(rig)  # one camera model and size, or a clear error
 
     def fn(images, masks, intrinsics, rotations, translations, reference, cand):
         run_rig = rig_from_arrays(rig, intrinsics, rotations, translations, reference)
-        return _outputs(forward(model, images, masks, make_grids(run_rig, cand, cfg, pano)))
+        return _outputs(_raw_forward(model, images, masks,
+                                     surrogate_resampling(run_rig, cfg.surrogate_hw),
+                                     model_grids(cfg, run_rig, cand, pano)))
 
     return fn
 
@@ -386,8 +400,8 @@ def export_panorama(meta: dict, config) -> Panorama:
 
 def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates,
                   pano: Panorama | None = None) -> dict:
-    """The same outputs computed by JAX (:func:`gijax.model.forward`, jitted), for parity
-    checks. ``images`` (B, N, h, w, 3) float in [0, 1] at the model's image size, masks
+    """The same outputs computed by JAX (the network on the images' surrogates, jitted), for
+    parity checks. ``images`` (B, N, h, w, 3) float in [0, 1] at the model's image size, masks
     (B, N, h, w); ``rig`` at its calibrated size; ``pano`` the output panorama (default the
     model's own)."""
     cfg = model.config
@@ -396,7 +410,8 @@ def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates,
 
     @nnx.jit
     def run(v, im, m, c):
-        return forward(v, im, m, make_grids(run_rig, c, cfg, pano))
+        return _raw_forward(v, im, m, surrogate_resampling(run_rig, cfg.surrogate_hw),
+                            model_grids(cfg, run_rig, c, pano))
 
     out = run(eval_view(model), jnp.asarray(images, jnp.float32), jnp.asarray(masks, jnp.float32),
               cand)

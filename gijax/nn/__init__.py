@@ -2,7 +2,7 @@
 spherical), cost-volume builders (concat and masked variance), the 3-D U-Net, the soft-argmax
 regressor, and the model presets."""
 
-from gijax.nn.build import NetworkParts, count_parameters, make_cost_volume, make_unet
+from gijax.nn.build import make_cost_volume, make_unet
 from gijax.nn.cost_volume import ConcatCostVolume, VarianceCostVolume, masked_variance
 from gijax.nn.features import FeatureExtractor
 from gijax.nn.layers import CONV3D_LOWERINGS, Conv3D, param_count
@@ -20,11 +20,9 @@ __all__ = [
     "Conv3D",
     "FeatureExtractor",
     "ModelConfig",
-    "NetworkParts",
     "SphericalConv",
     "UNet3D",
     "VarianceCostVolume",
-    "count_parameters",
     "get_preset",
     "make_cost_volume",
     "make_unet",

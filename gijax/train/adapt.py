@@ -37,7 +37,7 @@ from gijax.candidates.parametrisation import candidates_from_logits, logits_from
 from gijax.geometry.panorama import Panorama, direction_to_pixel
 from gijax.geometry.panorama_frame import panorama_rays
 from gijax.geometry.rig import Rig
-from gijax.model import OmniStereoNet, model_panorama
+from gijax.model import OmniStereoNet, model_grids, model_panorama
 from gijax.sampling import bilinear_sample
 from gijax.sweep.consistency import view_dispersion
 from gijax.train.losses import smooth_l1_loss
@@ -88,17 +88,19 @@ def photometric_loss(surrogates: Array, masks: Array, rig: Rig, inv_distance: Ar
 def adaptation_loss(kind: str, model: OmniStereoNet, logits: Array, batch: dict, rig: Rig,
                     d_min: float, d_max: float) -> Array:
     """The loss of ``kind`` ('supervised' or 'photometric') for the list of ``logits`` on one
-    batch (the loader's: surrogate ``images``, ``masks``, and ``distance`` / ``valid`` labels
+    batch (the loader's: ``surrogates``, ``masks``, and ``distance`` / ``valid`` labels
     for the supervised loss), ``model`` in eval mode on its own panorama; traceable."""
     cand = candidates_from_logits(logits, d_min, d_max)
-    images = batch["images"]
-    out = model(images, batch["masks"], rig, cand.astype(images.dtype))
+    surrogates = batch["surrogates"]
+    grids = model_grids(model.config, rig, cand.astype(surrogates.dtype))
+    out = model(surrogates, batch["masks"], grids)
     if kind == "supervised":
         return smooth_l1_loss(out["inv_distance"], batch["distance"], batch["valid"], cand)
     if kind == "photometric":
         cfg = model.config
-        return photometric_loss(images, batch["masks"], rig, out["inv_distance"],
-                                model_panorama(cfg), Panorama.hemisphere(*images.shape[2:4]))
+        return photometric_loss(surrogates, batch["masks"], rig, out["inv_distance"],
+                                model_panorama(cfg),
+                                Panorama.hemisphere(*surrogates.shape[2:4]))
     raise ValueError(f"adaptation loss {kind!r}; expected one of {LOSSES}")
 
 
@@ -231,8 +233,8 @@ def adapt_candidates(model: OmniStereoNet, rig: Rig, make_batches: Callable, ini
                   unit="step", disable=not progress) as bar:
             for step in range(step0, config.steps):
                 batch = next(loader)
-                feed = {k: jnp.asarray(batch[k]) for k in ("images", "masks", "distance",
-                                                          "valid")}
+                feed = {k: jnp.asarray(batch[k]) for k in ("surrogates", "masks",
+                                                          "distance", "valid")}
                 logits, opt, loss = step_fn(logits, opt, feed)
                 loss = float(loss)
                 if not math.isfinite(loss):

@@ -1,6 +1,6 @@
 """Training data streams with a resumable position: datasets on disk and in-memory arrays.
 
-A stream is an iterator of batches (dicts of numpy arrays: ``images`` (B, N, Hs, Ws, 3),
+A stream is an iterator of batches (dicts of numpy arrays: ``surrogates`` (B, N, Hs, Ws, 3),
 ``masks`` (B, N, Hs, Ws), ``distance`` (B, H, W) metres, ``valid`` (B, H, W)) with a
 ``state()`` method; a stream factory ``make(state | None) -> stream`` rebuilds the stream at a
 saved position. Both kinds here follow :class:`gijax.data.Loader`'s epoch order (a permutation

@@ -30,12 +30,13 @@ from flax import nnx
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from gijax.candidates.parametrisation import candidates_from_logits
+from gijax.model import model_grids
 from gijax.train.config import TrainConfig
 from gijax.train.losses import model_loss
 
 Array = jax.Array
 DATA_AXIS = "data"
-BATCH_KEYS = ("images", "masks", "distance", "valid")
+BATCH_KEYS = ("surrogates", "masks", "distance", "valid")
 
 
 def learning_rate_schedule(cfg: TrainConfig) -> optax.Schedule:
@@ -110,7 +111,7 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
     soft-argmax (the label side of the loss, its clamping and two-hot target, is held at the
     current list: moving candidates must not move the target).
 
-    ``batch`` holds ``images`` (B, N, Hs, Ws, 3), ``masks`` (B, N, Hs, Ws), ``distance``
+    ``batch`` holds ``surrogates`` (B, N, Hs, Ws, 3), ``masks`` (B, N, Hs, Ws), ``distance``
     (B, H, W) metres and ``valid`` (B, H, W). With ``grad_accum = k`` the batch is cut into k
     interleaved micro-batches (sample i goes to micro-batch i mod k, which keeps every
     micro-batch spread over all devices); their gradients are averaged and applied once.
@@ -129,8 +130,9 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
         # (BatchNorm statistics) created inside the transformation that runs it.
         rest = jax.tree.map(lambda x: x, rest)
         model = nnx.merge(graphdef, _cast_floats(params, jnp.bfloat16) if bf16 else params, rest)
-        images = batch["images"].astype(jnp.bfloat16 if bf16 else jnp.float32)
-        out = model(images, batch["masks"], rig, candidates.astype(images.dtype))
+        surrogates = batch["surrogates"].astype(jnp.bfloat16 if bf16 else jnp.float32)
+        grids = model_grids(model.config, rig, candidates.astype(surrogates.dtype))
+        out = model(surrogates, batch["masks"], grids)
         out = {k: v.astype(jnp.float32) if jnp.issubdtype(v.dtype, jnp.floating) else v
                for k, v in out.items()}
         loss = model_loss(loss_kind, out, batch["distance"], batch["valid"],
@@ -180,11 +182,13 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
 
 
 def build_eval_forward(eval_graphdef) -> Callable:
-    """``forward(params, rest, images, masks, rig, candidates) -> model outputs`` in eval mode."""
+    """``forward(params, rest, surrogates, masks, rig, candidates) -> model outputs`` in eval
+    mode, the sweep grids made from ``rig`` inside."""
 
-    def forward(params, rest, images, masks, rig, candidates):
+    def forward(params, rest, surrogates, masks, rig, candidates):
         model = nnx.merge(eval_graphdef, params, jax.tree.map(lambda x: x, rest))
-        return model(images, masks, rig, candidates)
+        grids = model_grids(model.config, rig, jnp.asarray(candidates, surrogates.dtype))
+        return model(surrogates, masks, grids)
 
     return forward
 

@@ -354,7 +354,7 @@ class Trainer:
     def predict_batch(self, batch: dict, params=None, rest=None) -> dict:
         if params is None:
             params, rest = self.local_variables()
-        return self._eval(params, rest, jnp.asarray(batch["images"], jnp.float32),
+        return self._eval(params, rest, jnp.asarray(batch["surrogates"], jnp.float32),
                           jnp.asarray(batch["masks"], jnp.float32), self.val_rig, self._cand)
 
     def validate(self, step: int) -> Optional[dict]:

@@ -23,7 +23,7 @@ def structure(cfg: ModelConfig) -> ModelConfig:
 def eval_forward_program(cfg: ModelConfig, rig, batch: int = 1, seed: int = 0):
     """(compiled, args) of the eval-mode forward pass (surrogates -> outputs) of a fresh
     network of ``cfg`` on ``rig`` (already at the network's image size)."""
-    from gijax.model import create_model
+    from gijax.model import create_model, model_grids
 
     model = create_model(cfg, seed=seed)
     model.eval()
@@ -31,7 +31,8 @@ def eval_forward_program(cfg: ModelConfig, rig, batch: int = 1, seed: int = 0):
     sur, masks, cand = network_inputs(cfg, rig.num_cameras, batch, seed)
 
     def forward(state, sur, masks, rig, cand):
-        out = nnx.merge(graphdef, state)(sur, masks, rig, cand)
+        model = nnx.merge(graphdef, state)
+        out = model(sur, masks, model_grids(model.config, rig, cand))
         return {k: out[k] for k in ("inv_distance", "distance", "entropy", "valid")}
 
     args = (state, sur, masks, rig, cand)
@@ -40,10 +41,10 @@ def eval_forward_program(cfg: ModelConfig, rig, batch: int = 1, seed: int = 0):
 
 def rig_sweep(cfg, feats, masks, rig, cand):
     """The sweep stage as the forward runs it: grids from the rig, then sampling."""
-    from gijax.model import Grids, sweep, sweep_grids
+    from gijax.model import model_grids
+    from gijax.sweep.grids import sweep_features
 
-    px, ok = sweep_grids(rig, cand, cfg)
-    return sweep(feats, masks, Grids(None, None, px, ok, cand), cfg.sweep_boundary)
+    return sweep_features(feats, masks, model_grids(cfg, rig, cand), cfg.sweep_boundary)
 
 
 def stage_programs(cfg: ModelConfig, seed: int = 0) -> tuple:
@@ -52,34 +53,31 @@ def stage_programs(cfg: ModelConfig, seed: int = 0) -> tuple:
     jittable forward (inverse distance); ``stages`` lists ``(name, fn)`` for the feature
     extractor, sweep (grids from the rig included), cost volume, U-Net and regression, each
     ``fn(state, *outputs of the previous stage)``."""
-    from gijax.model import create_model
-    from gijax.nn import regress
+    from gijax.model import create_model, model_grids
 
     rig = network_rig(builtin_rig("paper-train"), cfg)
     model = create_model(cfg, seed=seed)
     model.eval()
     graphdef, state = nnx.split(model)
     sur, masks, cand = network_inputs(cfg, rig.num_cameras)
-    b, n, hs, ws, _ = sur.shape
 
     def whole(state, sur, masks):
-        return nnx.merge(graphdef, state)(sur, masks, rig, cand)["inv_distance"]
+        return nnx.merge(graphdef, state)(sur, masks, model_grids(cfg, rig, cand))["inv_distance"]
 
     def features(state, sur):
-        feats = nnx.merge(graphdef, state).features(sur.reshape(b * n, hs, ws, 3))
-        return feats.reshape(b, n, *feats.shape[1:])
+        return nnx.merge(graphdef, state).extract_features(sur)
 
     def sweep_stage(state, feats):
-        return rig_sweep(cfg, feats, masks, rig, cand)
+        return nnx.merge(graphdef, state).sweep(feats, masks, model_grids(cfg, rig, cand))
 
     def cost_volume(state, sampled, valid):
-        return nnx.merge(graphdef, state).cost_volume(sampled, valid.astype(sampled.dtype))
+        return nnx.merge(graphdef, state).build_cost_volume(sampled, valid)
 
     def unet(state, volume):
-        return nnx.merge(graphdef, state).unet(volume)
+        return nnx.merge(graphdef, state).unet_logits(volume)
 
     def regression(state, logits):
-        return regress(logits, cand, cfg.output_hw)["inv_distance"]
+        return nnx.merge(graphdef, state).regress(logits, cand)["inv_distance"]
 
     stages = [("features", features), ("sweep", sweep_stage), ("cost volume", cost_volume),
               ("U-Net", unet), ("regression", regression)]

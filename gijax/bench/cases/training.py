@@ -39,7 +39,7 @@ def train_step(ctx: Context) -> dict:
             sur, masks, cand = network_inputs(mc, rig.num_cameras, s.train_batch)
             h, w = mc.output_hw
             batch = S.place_batch({
-                "images": np.asarray(sur), "masks": np.asarray(masks),
+                "surrogates": np.asarray(sur), "masks": np.asarray(masks),
                 "distance": rng.uniform(0.5, 20, (s.train_batch, h, w)).astype(np.float32),
                 "valid": np.ones((s.train_batch, h, w), bool)}, mesh)
             compiled = step.lower(state, batch, rig, cand).compile()
