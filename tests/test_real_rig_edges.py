@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from gijax.cli import main
+from gijax.data.reader import DatasetReader
 from gijax.geometry.layouts import builtin_rig, synthetic_camera
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import make_rig
@@ -50,6 +51,9 @@ def test_eval_rtss_on_a_five_camera_ring_needs_no_model_and_scores_holes(ring_da
     assert rc == 0, err
     # The default list is named and counted at run time.
     assert "RS-E16's own list (16 even in inverse distance" in err
+    # A progress bar over the samples, on stderr (RTSS runs take seconds a sample).
+    n = len(DatasetReader(data))
+    assert "eval RS-E16/rtss: 100%" in err and f"{n}/{n}" in err, err
     res = json.loads(out.read_text())
     assert res["run"] is None and len(res["candidates"]) == 16
     for key in ("mae", "rmse", "ssim"):

@@ -72,6 +72,8 @@ def register(subparsers) -> None:
                                                  "(records the metric definitions used)")
     p.add_argument("--allow-partial", action="store_true",
                    help="evaluate on a dataset holding fewer samples than its manifest requests")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (on stderr) while the samples are evaluated")
     p.set_defaults(func=run)
 
 
@@ -146,9 +148,15 @@ def run(args) -> int:
         name = f"{config.name}/rtss"
     print(f"candidates: {how}; {len(cand)} from {float(cand[0]):.3f} to {float(cand[-1]):.3f} m",
           file=sys.stderr)
-    evaluation = evaluate_predictions(batches, predict, cand, metric_sets=(args.metrics,),
-                                      limit=args.limit, warmup=True,
-                                      name=f"evaluation data {args.data}")
+    from tqdm import tqdm
+
+    total = min(len(reader), args.limit) if args.limit else len(reader)
+    with tqdm(total=total, desc=f"eval {name}", unit="sample", file=sys.stderr,
+              disable=args.no_progress) as bar:
+        evaluation = evaluate_predictions(batches, predict, cand, metric_sets=(args.metrics,),
+                                          limit=args.limit, warmup=True,
+                                          name=f"evaluation data {args.data}",
+                                          on_batch=bar.update)
     metrics = evaluation.metrics[args.metrics]
     times = evaluation.seconds
     bad = sorted(k for k, v in metrics.items()

@@ -83,7 +83,8 @@ def _scored_inputs(inv: np.ndarray, estimated: np.ndarray, label: np.ndarray, ca
 def evaluate_predictions(batches: Iterable[dict], predict: Callable[[dict], Prediction],
                          candidates, metric_sets=("paper",), holes: str = "far",
                          limit: int = 0, warmup: bool = False, keep: int = 0,
-                         name: str = "evaluation data") -> Evaluation:
+                         name: str = "evaluation data",
+                         on_batch: Callable[[int], None] | None = None) -> Evaluation:
     """Metrics of ``predict`` over ``batches``.
 
     Args:
@@ -97,6 +98,8 @@ def evaluate_predictions(batches: Iterable[dict], predict: Callable[[dict], Pred
       warmup: call ``predict`` once on the first batch before timing (compilation).
       keep: how many of the first samples to return in ``examples``.
       name: the data's name in the error raised when there is no batch.
+      on_batch: called with each batch's sample count once it is scored (a progress bar's
+        ``update``: the loop itself draws nothing).
     """
     for m in metric_sets:
         check_metric_set(m)
@@ -141,6 +144,8 @@ def evaluate_predictions(batches: Iterable[dict], predict: Callable[[dict], Pred
                    for k, v in pred.items()}
             examples.append((Prediction(**one), distance[i]))
         seen += len(distance)
+        if on_batch is not None:
+            on_batch(len(distance))
     if not seconds:
         raise ValueError(f"{name} yielded no samples")
     values = {m: {k: np.concatenate([p[k] for p in ps]) for k in ps[0]}
