@@ -169,8 +169,12 @@ def ensure_mixture_dataset(work: Path, scale: Scale, recipe: Recipe, index: int,
     render_dataset(rig, out, recipe.scenes, seed=seed, image_scale=scale.image_scale,
                    pano=Panorama.hemisphere(h, w), style=DATA_STYLE, progress=scale.progress,
                    log=log)
+    from gijax.store.envelope import rig_spacing
+
     fovs = [round(math.degrees(float(c.fov)), 1) for c in rig.cameras]
     return {"role": role, "rig": base, "lens": lens, "fov_deg": fovs,
+            "models": [c.MODEL for c in rig.cameras],
+            "spacing_m": [round(x, 4) for x in rig_spacing(rig)],
             "cameras": rig.num_cameras, "path": str(out), "samples": recipe.scenes,
             "seed": seed, "style": DATA_STYLE, "command": gijax_command(argv),
             "seconds": time.perf_counter() - t0}
@@ -440,8 +444,8 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
            + [next(d["command"] for d in data if d["role"] == "val"), trained["command"],
               f"python -c \"from gijax.train.bundle import write_bundle; write_bundle("
               f"'{run}', '{bundle}', provenance)\""],
-           "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "cameras", "samples",
-                                       "seed") if k in d} for d in data],
+           "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "models", "spacing_m",
+                                       "cameras", "samples", "seed") if k in d} for d in data],
            "runs": run_pieces(records),
            "checkpoint": "best by validation MAE",
            "validation": [r for r in records if r.get("split") == "val"],

@@ -138,6 +138,9 @@ def run(args) -> int:
         note = coverage_note(mc, reader.pano)
         if note:
             print(note, file=sys.stderr)
+        from gijax.store.envelope import warn_if_outside_training
+
+        warn_if_outside_training(rig, args.ckpt, mc.name)
         predict = learned_batch_predictor(model, rig, cand, reader.pano)
         batches = validation_batches(reader, rig, args.batch, mc.surrogate_hw, 0)
         name = mc.name

@@ -125,6 +125,9 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     rig, pano = panorama_from_args(args, rig, hemi)
     candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)
     check_prediction(pano.shape, len(candidates))
+    from gijax.store.envelope import warn_if_outside_training
+
+    warn_if_outside_training(rig, args.ckpt, config.name)
     result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args, title)

@@ -34,6 +34,17 @@ def load_model(spec: str | os.PathLike, which: str = "best"):
     return loaded
 
 
+def model_provenance(spec: str | os.PathLike | None) -> dict:
+    """The ``PROVENANCE.json`` of the bundle ``--ckpt spec`` names ({} for a run folder, an
+    untrained preset or a bundle without one)."""
+    if not spec:
+        return {}
+    from gijax.store.bundles import read_provenance
+
+    path = resolve_model_path(spec)
+    return read_provenance(path) if is_bundle(path) else {}
+
+
 def model_or_untrained(ckpt: str | os.PathLike | None, preset: str | None, seed: int = 0):
     """``(model, model_config, training candidates or None, label)``: the trained model that
     ``ckpt`` names (see :func:`load_model`), or, without one, a freshly initialised ``preset``
@@ -51,6 +62,6 @@ def model_or_untrained(ckpt: str | os.PathLike | None, preset: str | None, seed:
             f"UNTRAINED {config.name} (random weights, seed {seed})")
 
 
-__all__ = ["bundled_names", "describe_bundled", "is_bundle", "load_bundle",
+__all__ = ["bundled_names", "describe_bundled", "is_bundle", "load_bundle", "model_provenance",
            "load_for_inference", "load_model", "model_or_untrained", "read_preset", "read_run_config",
            "resolve_model_path"]
