@@ -90,19 +90,25 @@ def plain_sigint():
 
 
 @contextlib.contextmanager
+def _silenced(name: str):
+    """The logger ``name`` disabled for the duration (its records dropped)."""
+    logger = logging.getLogger(name)
+    previous = logger.disabled
+    logger.disabled = True
+    try:
+        yield
+    finally:
+        logger.disabled = previous
+
+
+@contextlib.contextmanager
 def quiet_restore():
     """Silence asyncio's logger while orbax restores: when one array of a damaged checkpoint
     fails, every other pending read is cancelled and asyncio logs each one with a full
     traceback (thousands of lines for a real model). The failure itself still raises. SIGINT
     as in :func:`plain_sigint`."""
-    logger = logging.getLogger("asyncio")
-    previous = logger.disabled
-    logger.disabled = True
-    try:
-        with plain_sigint():
-            yield
-    finally:
-        logger.disabled = previous
+    with _silenced("asyncio"), plain_sigint():
+        yield
 
 
 class DiskFullError(OSError):
@@ -132,11 +138,8 @@ def writing(manager: ocp.CheckpointManager, step: int, kept: Callable[[], Option
     dropped here, since the failure itself is raised. ``kept()`` gives the newest complete
     checkpoint's step, or None.
     """
-    absl = logging.getLogger("absl")
-    previous = absl.disabled
-    absl.disabled = True
     try:
-        with plain_sigint():
+        with _silenced("absl"), plain_sigint():
             yield
     except Exception as exc:
         if not _disk_full(exc):
@@ -151,8 +154,6 @@ def writing(manager: ocp.CheckpointManager, step: int, kept: Callable[[], Option
                                           f"{step} into {folder} (its partial files are "
                                           f"removed); {keeps}: free space and run the same "
                                           f"command to continue") from None
-    finally:
-        absl.disabled = previous
 
 
 def failure_reason(exc: BaseException) -> str:
