@@ -8,7 +8,12 @@ images RTSS matches on. Each design here spends the CPU differently (``gijax.nn.
 * ``G16VV-cpu-fine``: the cost volume at the output's 32 x 128 (a cell per feature pixel);
 * ``G32VV-cpu``: 32 candidates instead of 16;
 * ``G16VV-cpu-refine``: a guided refinement after the soft-argmax, at the output's resolution,
-  from the cameras' colours at the estimated distance (:mod:`gijax.nn.refine`).
+  from the cameras' colours at the estimated distance (:mod:`gijax.nn.refine`);
+* ``G16VV-cpu-zncc``: the classical matching cost (the cameras' mean pairwise ZNCC of 4 x 4
+  grey samples per cell, :mod:`gijax.sweep.matching`) as a cost-volume channel beside the
+  learned features, so that the network starts from what the baseline measures;
+* ``G16VV-cpu-wide``: fewer, wider feature layers (16 channels, 2 residual blocks at the
+  feature resolution, against 8 channels in 2 + 3 blocks).
 
 Every design trains from random weights (seed 0) on the bundle's data (the rig-and-lens
 mixture of ``experiments/bundle_model.py``, same augmentation, calibration errors and
@@ -47,7 +52,8 @@ from experiments.scales import SCALES, Scale, model_overrides  # noqa: E402
 from experiments.workfolder import gijax_command, metrics_records, train_run  # noqa: E402
 
 NAME = "design_comparison"
-DESIGNS = ("G16VV-cpu", "G16VV-cpu-fine", "G32VV-cpu", "G16VV-cpu-refine")
+DESIGNS = ("G16VV-cpu", "G16VV-cpu-fine", "G32VV-cpu", "G16VV-cpu-refine", "G16VV-cpu-zncc",
+           "G16VV-cpu-wide")
 TEST = "paper-test1"
 
 

@@ -10,7 +10,7 @@ by :func:`gijax.sweep.grids.fisheye_surrogates` with the
 :func:`gijax.sweep.grids.surrogate_resampling` maps at ``config.surrogate_hw`` (the data
 loader does the same per sample on its own threads). The network's stages are its methods
 (:meth:`OmniStereoNet.extract_features`, :meth:`~OmniStereoNet.sweep`,
-:meth:`~OmniStereoNet.build_cost_volume`, :meth:`~OmniStereoNet.unet_logits`,
+:meth:`~OmniStereoNet.matching`, :meth:`~OmniStereoNet.build_cost_volume`, :meth:`~OmniStereoNet.unet_logits`,
 :meth:`~OmniStereoNet.regress`, :meth:`~OmniStereoNet.refined`), which ``__call__`` runs in
 order.
 
@@ -52,7 +52,9 @@ from gijax.geometry.rig import Rig
 from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_cost_volume,
                       make_unet, param_count, regress)
 from gijax.nn.refine import GuidedRefinement, colour_guide
-from gijax.sweep.grids import SweepGrids, cost_panorama, sweep_colours, sweep_features, sweep_grids
+from gijax.sweep.grids import (SweepGrids, cost_panorama, match_grey, sweep_colours,
+                               sweep_features, sweep_grids)
+from gijax.sweep.matching import cell_zncc
 
 Array = jax.Array
 
@@ -91,14 +93,17 @@ def model_grids(config: ModelConfig, rig: Rig, candidates: Array,
     model's image size, i.e. intrinsics already scaled by ``config.image_scale``),
     ``candidates`` (D,) metres and the output panorama ``pano`` (static; default
     :func:`model_panorama`, the coverage the model was trained on): the sweep over its cost
-    panorama into the feature maps, and the guide grids when ``config.refine``. Pure and
-    traceable: evaluated once for a fixed rig, or inside jit when the rig is an input."""
+    panorama into the feature maps, the guide grids when ``config.refine`` and the match grids
+    with a matching cost. Pure and traceable: evaluated once for a fixed rig, or inside jit
+    when the rig is an input."""
     check_candidates(config, candidates)
     pano = model_panorama(config) if pano is None else pano
     _check_output_panorama(config, pano)
-    guide = (pano, config.surrogate_hw) if config.refine else ()
+    samples = config.matching_samples if config.matching_cost != "none" else 0
     return sweep_grids(rig, candidates, cost_panorama(pano, config.output_stride),
-                       config.feature_hw, *guide)
+                       config.feature_hw, pano if config.refine else None,
+                       config.surrogate_hw if (config.refine or samples) else None,
+                       match_samples=samples)
 
 
 def coverage_note(config: ModelConfig, pano: Panorama) -> str | None:
@@ -174,7 +179,9 @@ class OmniStereoNet(nnx.Module):
         dtype = surrogates.dtype
         feats = self.extract_features(surrogates)
         sampled, cam_valid = self.sweep(feats, masks, grids)
-        logits = self.unet_logits(self.build_cost_volume(sampled, cam_valid))
+        matching = (self.matching(surrogates, masks, grids)
+                    if cfg.matching_cost != "none" else None)
+        logits = self.unet_logits(self.build_cost_volume(sampled, cam_valid, matching))
         out = self.regress(logits, grids.candidates.astype(dtype))
         if cfg.refine:
             out.update(self.refined(surrogates, masks, grids, out))
@@ -199,10 +206,25 @@ class OmniStereoNet(nnx.Module):
         (B, N, D, h, w) bool (:func:`gijax.sweep.grids.sweep_features`)."""
         return sweep_features(features, masks, grids, self.config.sweep_boundary)
 
-    def build_cost_volume(self, sampled: Array, valid: Array) -> Array:
-        """Swept features (B, N, D, h, w, C) and their validity (B, N, D, h, w) -> the cost
-        volume (B, D, h, w, unet_in)."""
-        return self.cost_volume(sampled, valid.astype(sampled.dtype))
+    def matching(self, surrogates: Array, masks: Array, grids: SweepGrids) -> Array:
+        """The matching-cost channel (B, D, h, w, 1): the cameras' agreement per candidate and
+        cost cell (:func:`gijax.sweep.matching.cell_zncc` of the grey levels at the match
+        grids). No weights: a cue computed from the images, not learned."""
+        cfg = self.config
+        if cfg.matching_cost == "none":
+            raise ValueError(f"model {cfg.name!r} has no matching cost")
+        if grids.match_px is None:
+            raise ValueError(f"model {cfg.name!r} has a matching cost and needs the match "
+                             f"grids in its sweep grids (gijax.model.model_grids)")
+        grey, seen = match_grey(surrogates, masks, grids, cfg.sweep_boundary)
+        return cell_zncc(grey, seen, cfg.matching_samples)[..., None]
+
+    def build_cost_volume(self, sampled: Array, valid: Array,
+                          matching: Array | None = None) -> Array:
+        """Swept features (B, N, D, h, w, C), their validity (B, N, D, h, w) and, for a model
+        with a matching cost, its channel (B, D, h, w, 1) -> the cost volume
+        (B, D, h, w, unet_in)."""
+        return self.cost_volume(sampled, valid.astype(sampled.dtype), matching)
 
     def unet_logits(self, volume: Array) -> Array:
         """The cost volume (B, D, h, w, unet_in) -> the U-Net's logits (B, D, h, w)."""

@@ -44,7 +44,7 @@ from gijax.geometry import cameras, field_of_view, occluder, panorama, rig as ri
 from gijax.geometry import panorama_frame
 from gijax.geometry.panorama import Panorama
 from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
-from gijax.sweep import consistency, grid, grids, sample, surrogate
+from gijax.sweep import consistency, grid, grids, matching, sample, surrogate
 from gijax.calibrate import refine as calib_refine
 from gijax.nn import cost_volume, layers, refine, regressor, spherical, upsample
 from gijax.evaluate import labels, metrics
@@ -948,6 +948,39 @@ def _sweep_colours(seed):
     sur = jnp.asarray(rng.uniform(size=(2, 2, *SURROGATE_HW, 3)), F64)
     masks = jnp.asarray(rng.uniform(0.2, 1.0, (2, 2, *SURROGATE_HW)), F64)
     return px, ok, candidates(seed), sur, masks
+
+
+@case(grids.match_grids, call=lambda r, c: grids.match_grids(r, c, PANO, SURROGATE_HW, 2),
+      diff=(0, 1))
+def _match_grids(seed):
+    return small_rig(seed), candidates(seed)
+
+
+@case(grids.sweep_grids, call=lambda r, c: grids.sweep_grids(
+    r, c, PANO, FEATURE_PANO.shape, None, SURROGATE_HW, match_samples=2), diff=(0, 1),
+      label="sweep_grids[match]")
+def _sweep_grids_match(seed):
+    return small_rig(seed), candidates(seed)
+
+
+@case(grids.match_grey, call=lambda px, ok, c, sur, m: grids.match_grey(
+    sur, m, grids.SweepGrids(px, ok, c, match_px=px, match_ok=ok)), diff=(0, 3, 4))
+def _match_grey(seed):
+    px, ok = grids.match_grids(small_rig(seed), candidates(seed), PANO, SURROGATE_HW, 2)
+    rng = np.random.default_rng(90 + seed)
+    sur = jnp.asarray(rng.uniform(size=(2, 2, *SURROGATE_HW, 3)), F64)
+    masks = jnp.asarray(rng.uniform(0.2, 1.0, (2, 2, *SURROGATE_HW)), F64)
+    return px, ok, candidates(seed), sur, masks
+
+
+@case(matching.cell_zncc, call=lambda g, s: matching.cell_zncc(g, s, 2), diff=(0,),
+      degenerate=[("flat patches", lambda: (jnp.full((1, 3, 2, 4, 4), 0.5, F64),
+                                            jnp.ones((1, 3, 2, 4, 4), F64)), False)])
+def _cell_zncc(seed):
+    rng = np.random.default_rng(95 + seed)
+    grey = jnp.asarray(rng.uniform(size=(2, 3, 2, 4, 6)), F64)
+    seen = jnp.asarray((rng.uniform(size=(2, 3, 2, 4, 6)) > 0.1).astype(np.float64))
+    return grey, seen
 
 
 @case(consistency.view_dispersion, diff=(0, 1),

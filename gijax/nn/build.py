@@ -15,8 +15,9 @@ def make_cost_volume(config: ModelConfig, rngs: nnx.Rngs) -> nnx.Module:
     """The config's cost-volume builder, ``feature_channels`` -> ``unet_in`` channels."""
     if config.cost_volume == "concat":
         return ConcatCostVolume(config.num_cameras, config.feature_channels, config.unet_in, rngs,
-                                conv3d=config.conv3d)
-    return VarianceCostVolume(config.feature_channels, config.unet_in, rngs, conv3d=config.conv3d)
+                                conv3d=config.conv3d, extra_channels=config.cost_extra_channels)
+    return VarianceCostVolume(config.feature_channels, config.unet_in, rngs, conv3d=config.conv3d,
+                              extra_channels=config.cost_extra_channels)
 
 
 def make_unet(config: ModelConfig, rngs: nnx.Rngs) -> UNet3D:

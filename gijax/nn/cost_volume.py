@@ -12,6 +12,9 @@ as ``conv3d`` (see :class:`gijax.nn.layers.Conv3D`).
 * :class:`VarianceCostVolume`: per channel, the variance over the valid cameras,
   ``sum_v (f - mean)^2 / count`` (not the standard deviation), 0 where fewer than 2 cameras are
   valid. Independent of the camera order and count, so one set of weights runs any rig.
+
+Both take ``extra`` channels (B, D, h, w, E) concatenated after the fused features, before the
+conv, when built with ``extra_channels = E`` (the matching cost, :mod:`gijax.sweep.matching`).
 """
 
 from __future__ import annotations
@@ -32,6 +35,20 @@ def _check(features: Array, valid: Array, who: str) -> None:
         raise ValueError(
             f"{who}: valid must be (B, Ncam, D, h, w) = {features.shape[:5]}, got {valid.shape}"
         )
+
+
+def _with_extra(fused: Array, extra: Array | None, channels: int, who: str) -> Array:
+    """The fused features (B, D, h, w, F) with the ``channels`` extra channels appended."""
+    if channels == 0:
+        if extra is not None:
+            raise ValueError(f"{who} was built without extra channels; found extra {extra.shape}")
+        return fused
+    want = (*fused.shape[:4], channels)
+    if extra is None or tuple(extra.shape) != want:
+        found = None if extra is None else tuple(extra.shape)
+        raise ValueError(f"{who} was built for {channels} extra channels of shape {want}; "
+                         f"found {found}")
+    return jnp.concatenate([fused, extra.astype(fused.dtype)], axis=-1)
 
 
 def masked_variance(features: Array, valid: Array) -> Array:
@@ -58,12 +75,14 @@ class ConcatCostVolume(nnx.Module):
     """Concatenate the cameras' features -> 3x3x3 conv (Ncam C -> out) + BN + LeakyReLU."""
 
     def __init__(self, num_cameras: int, channels: int, out_channels: int, rngs: nnx.Rngs,
-                 conv3d: str = "auto"):
+                 conv3d: str = "auto", extra_channels: int = 0):
         self.num_cameras = num_cameras
         self.channels = channels
-        self.fuse = ConvBN(num_cameras * channels, out_channels, 3, 3, rngs, conv3d=conv3d)
+        self.extra_channels = extra_channels
+        self.fuse = ConvBN(num_cameras * channels + extra_channels, out_channels, 3, 3, rngs,
+                           conv3d=conv3d)
 
-    def __call__(self, features: Array, valid: Array) -> Array:
+    def __call__(self, features: Array, valid: Array, extra: Array | None = None) -> Array:
         _check(features, valid, "ConcatCostVolume")
         b, n, d, h, w, c = features.shape
         if n != self.num_cameras or c != self.channels:
@@ -73,21 +92,24 @@ class ConcatCostVolume(nnx.Module):
                 "fixed; use a variance model for other rigs)"
             )
         stacked = jnp.moveaxis(features, 1, 4).reshape(b, d, h, w, n * c)
-        return self.fuse(stacked)
+        return self.fuse(_with_extra(stacked, extra, self.extra_channels, "ConcatCostVolume"))
 
 
 class VarianceCostVolume(nnx.Module):
     """Masked variance over the valid cameras -> 3x3x3 conv (C -> out) + BN + LeakyReLU."""
 
-    def __init__(self, channels: int, out_channels: int, rngs: nnx.Rngs, conv3d: str = "auto"):
+    def __init__(self, channels: int, out_channels: int, rngs: nnx.Rngs, conv3d: str = "auto",
+                 extra_channels: int = 0):
         self.channels = channels
-        self.fuse = ConvBN(channels, out_channels, 3, 3, rngs, conv3d=conv3d)
+        self.extra_channels = extra_channels
+        self.fuse = ConvBN(channels + extra_channels, out_channels, 3, 3, rngs, conv3d=conv3d)
 
-    def __call__(self, features: Array, valid: Array) -> Array:
+    def __call__(self, features: Array, valid: Array, extra: Array | None = None) -> Array:
         _check(features, valid, "VarianceCostVolume")
         if features.shape[-1] != self.channels:
             raise ValueError(
                 f"VarianceCostVolume built for {self.channels} channels, "
                 f"got {features.shape[-1]}"
             )
-        return self.fuse(masked_variance(features, valid))
+        fused = masked_variance(features, valid)
+        return self.fuse(_with_extra(fused, extra, self.extra_channels, "VarianceCostVolume"))

@@ -14,8 +14,11 @@ G16VV          16 GI       volume  spherical  variance 16  in16 / f96   36.5 M
 =============  ==========  ======  =========  ===========  ===========  =======================
 
 CPU-scale designs of gijax's own (options off in the paper presets): ``G16VV-cpu-fine`` (the cost
-volume at the output's 32 x 128, ``output_stride=1``), ``G32VV-cpu`` (32 candidates) and
-``G16VV-cpu-refine`` (a guided refinement at the output's resolution, ``refine=True``).
+volume at the output's 32 x 128, ``output_stride=1``), ``G32VV-cpu`` (32 candidates),
+``G16VV-cpu-refine`` (a guided refinement at the output's resolution, ``refine=True``),
+``G16VV-cpu-zncc`` (the classical matching cost as a cost-volume channel,
+``matching_cost='zncc'``) and ``G16VV-cpu-wide`` (16 feature channels in 2 residual blocks at the
+feature resolution).
 
 The ``-cpu`` presets keep every structural choice (candidate count and kind, loss, feature kind,
 cost-volume kind, camera count, mask augmentation) and shrink the sizes so that a model trains on
@@ -35,6 +38,7 @@ _FEATURES = ("plain", "spherical")
 _COST_VOLUMES = ("concat", "variance")
 _SPHERICAL_TAPS = ("release", "tangent")
 _SWEEP_BOUNDARIES = ("zeros", "wrap")
+MATCHING_COSTS = ("none", "zncc")
 PANORAMA_COVERAGES = ("hemisphere", "sphere")
 OUTPUT_STRIDES = (1, 2)
 
@@ -52,13 +56,19 @@ class ModelConfig:
     (:func:`gijax.model.model_panorama`). ``image_scale`` is the factor applied to the raw fisheye images and the rig
     intrinsics before resampling (1.0 at paper size). Distances ``d_min``/``d_max`` are metres.
     ``unet_in`` is the number of channels of the cost volume, which the U-Net consumes: the
-    camera count times ``feature_channels`` for concat, ``feature_channels`` for variance.
+    camera count times ``feature_channels`` for concat; for variance the width the cost
+    volume's conv maps the feature channels to (``feature_channels`` in the paper's presets).
     ``output_stride`` is ``output_hw / cost_hw``: 2 in the paper (the logits are upsampled x2
     before the softmax); 1 puts the cost volume at the output's resolution (gijax's finer
     CPU-scale design, ``G16VV-cpu-fine``: a cell per feature pixel, sharper depth edges).
     ``refine`` adds gijax's guided refinement after the soft-argmax (:mod:`gijax.nn.refine`:
     a small 2-D network at the output's resolution, guided by the cameras' colours at the
-    estimated distance; ``G16VV-cpu-refine``).
+    estimated distance; ``G16VV-cpu-refine``). ``matching_cost = 'zncc'`` adds the classical
+    matching cost as one more channel of the cost volume, beside the learned features
+    (:mod:`gijax.sweep.matching`: per candidate and cell, the mean zero-mean normalised
+    cross-correlation of the cameras' grey levels at ``matching_samples x matching_samples``
+    sub-cell points, read from the surrogate images; ``G16VV-cpu-zncc``); ``'none'`` (the
+    paper's) leaves it out.
 
     Two choices keep the release's behaviour by default and offer gijax's alternative:
 
@@ -102,6 +112,8 @@ class ModelConfig:
     panorama: str = "hemisphere"
     output_stride: int = 2
     refine: bool = False
+    matching_cost: str = "none"
+    matching_samples: int = 4
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -118,6 +130,7 @@ class ModelConfig:
             ("sweep_boundary", _SWEEP_BOUNDARIES),
             ("conv3d", CONV3D_LOWERINGS),
             ("panorama", PANORAMA_COVERAGES),
+            ("matching_cost", MATCHING_COSTS),
         ):
             if getattr(self, field) not in allowed:
                 fail(field, f"one of {allowed}", getattr(self, field))
@@ -143,16 +156,16 @@ class ModelConfig:
                  self.output_hw)
         if len(self.feature_blocks) != 2 or any(b < 0 for b in self.feature_blocks):
             fail("feature_blocks", "two non-negative block counts", self.feature_blocks)
-        for field in ("num_cameras", "feature_channels", "unet_base"):
+        for field in ("num_cameras", "feature_channels", "unet_base", "matching_samples"):
             if getattr(self, field) < 1:
                 fail(field, "a positive integer", getattr(self, field))
-        expected_in = (
-            self.num_cameras * self.feature_channels
-            if self.cost_volume == "concat"
-            else self.feature_channels
-        )
-        if self.unet_in != expected_in:
-            fail("unet_in", f"{expected_in} for a {self.cost_volume} cost volume", self.unet_in)
+        # A concat volume's conv sees the stacked cameras; a variance volume's conv maps the
+        # feature channels to any width (the paper's presets keep the two equal).
+        if self.cost_volume == "concat" and self.unet_in != self.num_cameras * self.feature_channels:
+            fail("unet_in", f"{self.num_cameras * self.feature_channels} for a concat cost volume",
+                 self.unet_in)
+        if self.unet_in < 1:
+            fail("unet_in", "a positive integer", self.unet_in)
         if self.cost_volume == "variance" and self.num_cameras < 2:
             fail("num_cameras", "at least 2 for a variance cost volume", self.num_cameras)
         if not 0.0 < self.d_min < self.d_max:
@@ -164,6 +177,12 @@ class ModelConfig:
     def feature_hw(self) -> tuple[int, int]:
         """(height, width) of the feature maps: a quarter of the surrogate image."""
         return (self.surrogate_hw[0] // 4, self.surrogate_hw[1] // 4)
+
+    @property
+    def cost_extra_channels(self) -> int:
+        """Channels the cost-volume builder receives beside the fused features: 1 with the
+        matching cost, else 0."""
+        return 0 if self.matching_cost == "none" else 1
 
     @property
     def cost_volume_shape(self) -> tuple[int, int, int, int]:
@@ -224,6 +243,14 @@ _DESIGNS = [
     dataclasses.replace(_G16VV_CPU, name="G16VV-cpu-fine", cost_hw=(32, 128), output_stride=1),
     dataclasses.replace(_G16VV_CPU, name="G32VV-cpu", num_candidates=32),
     dataclasses.replace(_G16VV_CPU, name="G16VV-cpu-refine", refine=True),
+    # The classical cue beside the learned one: ZNCC of 4 x 4 colour samples per cell.
+    dataclasses.replace(_G16VV_CPU, name="G16VV-cpu-zncc", matching_cost="zncc"),
+    # Fewer, wider feature layers: 16 channels (a full AVX-512 vector, where 8 fill half of one)
+    # in 2 residual blocks at the quarter resolution instead of 8 channels in 2 blocks at half
+    # and 3 at quarter (about the same multiply-adds); the cost volume's conv maps them to the
+    # U-Net's 8 input channels, so the U-Net is the bundle's.
+    dataclasses.replace(_G16VV_CPU, name="G16VV-cpu-wide", feature_channels=16,
+                        feature_blocks=(0, 2), unet_in=8),
 ]
 PRESETS.update({c.name: c for c in _DESIGNS})
 

@@ -10,11 +10,13 @@ model layer turns a model's config into those sizes, :func:`gijax.model.model_gr
   the network consumes (the data loader does the same per sample on its own threads);
 * :class:`SweepGrids` (:func:`sweep_grids`): per camera, the feature-map pixel of every
   (candidate, cost cell) point and its validity, the candidates, and, for a network with the
-  guided refinement, the surrogate pixel of every (candidate, output pixel) point.
+  guided refinement, the surrogate pixel of every (candidate, output pixel) point; for a network
+  with the matching cost, the surrogate pixel of every (candidate, sub-cell) point, ``k x k``
+  per cost cell (:func:`match_grids`).
 
 :func:`sweep_features` samples a batch of feature maps and masks at the sweep grids (the sweep
-stage of the network) and :func:`sweep_colours` a batch of surrogate images and masks at the
-guide grids. A camera counts for a point when the grid point is valid for it and its sampled
+stage of the network), :func:`sweep_colours` a batch of surrogate images and masks at the
+guide grids and :func:`match_grey` at the match grids. A camera counts for a point when the grid point is valid for it and its sampled
 mask is above :data:`MASK_THRESHOLD` (any overlap with the seen region, as in the release).
 """
 
@@ -63,6 +65,10 @@ class SweepGrids:
         point, for a network with the guided refinement; else None.
       guide_ok: (N, D, H, W) bool, the point is in front of and seen by that camera's lens;
         None with ``guide_px``.
+      match_px: (N, D, k h, k w, 2) surrogate pixel (col, row) of every (candidate, sub-cell)
+        point, ``k x k`` sub-cells per cost cell, for a network with the matching cost; else None.
+      match_ok: (N, D, k h, k w) bool, the point is in front of and seen by that camera's lens;
+        None with ``match_px``.
     """
 
     sweep_px: Array
@@ -70,12 +76,15 @@ class SweepGrids:
     candidates: Array
     guide_px: Array | None = None
     guide_ok: Array | None = None
+    match_px: Array | None = None
+    match_ok: Array | None = None
 
 
 jax.tree_util.register_dataclass(SurrogateMaps, data_fields=["fisheye_px", "fisheye_ok"],
                                  meta_fields=[])
 jax.tree_util.register_dataclass(
-    SweepGrids, data_fields=["sweep_px", "sweep_ok", "candidates", "guide_px", "guide_ok"],
+    SweepGrids, data_fields=["sweep_px", "sweep_ok", "candidates", "guide_px", "guide_ok",
+                             "match_px", "match_ok"],
     meta_fields=[])
 
 
@@ -99,25 +108,46 @@ def guide_grids(rig: Rig, candidates: Array, output_pano: Panorama,
     return sweep_grid(rig, candidates, output_pano, Panorama.hemisphere(*surrogate_hw))
 
 
+def match_grids(rig: Rig, candidates: Array, cost_pano: Panorama,
+                surrogate_hw: tuple[int, int], samples: int) -> tuple[Array, Array]:
+    """(N, D, k h, k w, 2) surrogate pixels and (N, D, k h, k w) validity of the sweep of
+    ``rig`` at ``candidates`` (D,) metres over the cost panorama ``cost_pano`` (h x w cells)
+    subdivided ``k = samples`` times along each side: the centres of the ``k x k`` equal
+    sub-cells of every cost cell (a panorama of k h x k w pixels over the same latitudes nests
+    its pixels in the cells), where the matching cost reads the cameras' colours
+    (:mod:`gijax.sweep.matching`)."""
+    if samples < 1:
+        raise ValueError(f"the match grids need at least 1 sample per cell side; found {samples}")
+    fine = Panorama(cost_pano.height * samples, cost_pano.width * samples, cost_pano.lat_min,
+                    cost_pano.lat_max)
+    return sweep_grid(rig, candidates, fine, Panorama.hemisphere(*surrogate_hw))
+
+
 def sweep_grids(rig: Rig, candidates: Array, cost_pano: Panorama, feature_hw: tuple[int, int],
                 guide_pano: Panorama | None = None,
-                surrogate_hw: tuple[int, int] | None = None) -> SweepGrids:
+                surrogate_hw: tuple[int, int] | None = None,
+                match_samples: int = 0) -> SweepGrids:
     """The :class:`SweepGrids` of ``rig`` (at the network's image size) at ``candidates`` (D,)
     metres, over the cost-volume panorama ``cost_pano`` (oriented by the rig's panorama frame)
     into feature maps of ``feature_hw`` = (height, width).
 
     With ``guide_pano`` (the output panorama) and ``surrogate_hw`` the guide grids of the
-    guided refinement are made too (:func:`guide_grids`); both or neither. The candidates are
-    kept in the rig's precision. Pure and traceable: evaluated once for a fixed rig, or inside
-    jit when the rig is an input.
+    guided refinement are made too (:func:`guide_grids`); with ``match_samples`` = k > 0 and
+    ``surrogate_hw`` the match grids of the matching cost (:func:`match_grids`). The candidates
+    are kept in the rig's precision. Pure and traceable: evaluated once for a fixed rig, or
+    inside jit when the rig is an input.
     """
-    if (guide_pano is None) != (surrogate_hw is None):
+    if guide_pano is not None and surrogate_hw is None:
         raise ValueError("guide grids need both the output panorama and the surrogate size")
+    if match_samples and surrogate_hw is None:
+        raise ValueError("match grids need the surrogate size")
     candidates = jnp.asarray(candidates, rig.translations.dtype)
     px, ok = sweep_grid(rig, candidates, cost_pano, Panorama.hemisphere(*feature_hw))
     guide = ((None, None) if guide_pano is None
              else guide_grids(rig, candidates, guide_pano, surrogate_hw))
-    return SweepGrids(px, ok, candidates, *guide)
+    match = ((None, None) if not match_samples
+             else match_grids(rig, candidates, cost_pano, surrogate_hw, match_samples))
+    return SweepGrids(px, ok, candidates, *guide, *match)
 
 
 def _fold_batch(x: Array) -> Array:
@@ -172,13 +202,37 @@ def sweep_colours(surrogates: Array, masks: Array, grids: SweepGrids,
     if grids.guide_px is None:
         raise ValueError("these sweep grids have no guide grids (made without the output "
                          "panorama and the surrogate size)")
+    return _sample_colours(surrogates, masks, grids.guide_px, grids.guide_ok, boundary,
+                           "the guided refinement")
+
+
+def match_grey(surrogates: Array, masks: Array, grids: SweepGrids,
+               boundary: str = "zeros") -> tuple[Array, Array]:
+    """Surrogate images (B, N, Hs, Ws, 3) and masks (B, N, Hs, Ws) sampled at the match grids:
+    grey levels (the mean of the three channels) (B, N, D, k h, k w) and whether each camera
+    sees each point (B, N, D, k h, k w), in the images' dtype (match point valid and sampled
+    mask > :data:`MASK_THRESHOLD`). The grey level is taken before sampling (bilinear sampling
+    is linear), so one gather moves two channels, not four."""
+    if grids.match_px is None:
+        raise ValueError("these sweep grids have no match grids (made without match samples)")
+    grey = jnp.mean(surrogates, axis=-1, keepdims=True)
+    sampled, seen = _sample_colours(grey, masks, grids.match_px, grids.match_ok, boundary,
+                                    "the matching cost")
+    return sampled[..., 0], seen
+
+
+def _sample_colours(surrogates: Array, masks: Array, px: Array, ok: Array, boundary: str,
+                    who: str) -> tuple[Array, Array]:
+    """Images (B, N, Hs, Ws, C) and masks (B, N, Hs, Ws) at surrogate pixels ``px``
+    (N, ..., 2) valid where ``ok``: (B, N, ..., C) values and (B, N, ...) seen, one gather
+    per camera for the whole batch."""
     if tuple(masks.shape[2:4]) != tuple(surrogates.shape[2:4]):
-        raise ValueError(f"the guided refinement reads masks at the surrogates' size "
+        raise ValueError(f"{who} reads masks at the surrogates' size "
                          f"{tuple(surrogates.shape[2:4])}; found {tuple(masks.shape[2:4])}")
     b = surrogates.shape[0]
     dtype = surrogates.dtype
     # Colours and masks of all samples in one gather per camera, at the surrogate's size.
     stacked = _fold_batch(jnp.concatenate([surrogates, masks[..., None].astype(dtype)], -1))
-    sampled = _unfold_batch(sample_sweep(stacked, grids.guide_px.astype(dtype), boundary), b)
-    seen = (grids.guide_ok[None] & (sampled[..., 3] > MASK_THRESHOLD)).astype(dtype)
-    return sampled[..., :3], seen
+    sampled = _unfold_batch(sample_sweep(stacked, px.astype(dtype), boundary), b)
+    seen = (ok[None] & (sampled[..., -1] > MASK_THRESHOLD)).astype(dtype)
+    return sampled[..., :-1], seen
