@@ -12,10 +12,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from gijax.cli.options import parse_up
 from gijax.geometry.layouts import builtin_rig, synthetic_camera
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import (choose_panorama, frame_from_up, panorama_pixels,
-                                           parse_up, with_panorama_rotation)
+                                           with_panorama_rotation)
 from gijax.geometry.rig import make_rig
 from gijax.geometry.rotations import axis_angle_to_matrix
 from gijax.nn.presets import ModelConfig
@@ -70,7 +71,7 @@ def test_outward_ring_gets_the_full_sphere_with_the_pole_up():
 
 def test_explicit_up_and_coverage():
     rig = outward_ring()
-    c = choose_panorama(rig, "hemisphere", up="-y")
+    c = choose_panorama(rig, "hemisphere", up=parse_up("-y"))
     assert c.coverage == "hemisphere" and "given up axis" in c.reason
     np.testing.assert_allclose(c.rotation[:, 2], [0, -1, 0], atol=1e-6)
     c = choose_panorama(builtin_rig("paper-train"), "sphere")

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gijax.data.release_layout import ReleaseDatasetReader, detect_layout
+from gijax.data.release import ReleaseDatasetReader, detect_layout
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.panorama import Panorama
 

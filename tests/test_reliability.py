@@ -417,7 +417,7 @@ def test_damaged_png_is_found_before_training(dataset, tmp_path, capfd):
 
 def test_logs_keep_one_record_per_step_after_a_resume(tmp_path):
     from gijax.io.events import EventWriter, read_events
-    from gijax.train.trainer import METRICS_FILE, drop_logs_after
+    from gijax.train.logbook import METRICS_FILE, drop_logs_after
 
     run = tmp_path / "run"
     run.mkdir()

@@ -121,7 +121,6 @@ NOT_TRACED = {
     "gijax.geometry.rig.is_homogeneous": "structural query: a Python bool from static fields",
     "gijax.geometry.panorama_frame.choose_panorama": "NumPy choice from concrete poses",
     "gijax.geometry.panorama_frame.estimate_up": "NumPy report of concrete poses",
-    "gijax.geometry.panorama_frame.parse_up": "command-line text to NumPy",
     "gijax.geometry.panorama_frame.describe_choice": "text report",
     "gijax.geometry.panorama_frame.panorama_of": "a static panorama from static sizes",
     "gijax.geometry.panorama_frame.coverage_of": "a name from a static panorama",

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from gijax.candidates.closed_form import (TRAIN_BASELINE, closed_form_steps, ev_candidates,
                                           gi_candidates)
+from gijax.candidates.kinds import KINDS, RECOMPUTED, candidates_for, recomputed_candidates
 from gijax.candidates.rig_aware import (DEFAULT_PANO, MEASURE_UNITS, RigTerms,
                                         cumulative_displacement, effective_baseline,
                                         fit_closed_form_baseline, rig_gi_candidates, rig_terms,
@@ -19,50 +20,11 @@ from gijax.candidates.spacing import camera_spacing, spacing_gi_candidates
 from gijax.candidates.uniformity import step_uniformity, summarize_steps
 from gijax.candidates.validation import check_candidates, guard_candidates
 
-KINDS = ("ev", "gi", "gi-closed", "gi-spacing")
-
-
-def candidates_for(kind: str, n: int, rig=None, d_min=0.5, d_max=100.0, baseline=None, **opts):
-    """Candidates of a kind: 'ev', 'gi' (rig-aware; needs ``rig``), 'gi-closed' or 'gi-spacing'.
-
-    'gi-closed' uses ``baseline`` metres, default the training baseline behind the released
-    lists (0.3095015413531889 m). 'gi-spacing' is the closed form with the rig's camera
-    spacing as the baseline (needs ``rig``; the released list on the training rig).
-    ``opts`` go to :func:`rig_gi_candidates`.
-    """
-    if kind == "ev":
-        return ev_candidates(n, d_min, d_max)
-    if kind == "gi-closed":
-        return gi_candidates(n, d_min, d_max, TRAIN_BASELINE if baseline is None else baseline)
-    if kind in ("gi", "gi-spacing") and rig is None:
-        raise ValueError(f"kind={kind!r} needs a rig; found rig=None "
-                         "(use kind='gi-closed' for the closed form with a given baseline)")
-    if kind == "gi-spacing":
-        return spacing_gi_candidates(rig, n, d_min, d_max)
-    if kind == "gi":
-        return rig_gi_candidates(rig, n, d_min, d_max, **opts)
-    raise ValueError(f"kind must be one of {KINDS}; found kind={kind!r}")
-
-
-RECOMPUTED = {"rig": "gi", "spacing": "gi-spacing", "ev": "ev"}
-"""Evaluation-time candidate specs (``--candidates`` of eval and predict) -> candidate kind:
-'rig' the rig-aware GI list, 'spacing' the closed form at the rig's camera spacing, 'ev' EV."""
-
-
-def recomputed_candidates(spec: str, n: int, rig, d_min=0.5, d_max=100.0):
-    """The list for an evaluation spec in :data:`RECOMPUTED` (whatever the training kind: the
-    paper recomputes GI candidates for a new rig for EV-trained models too, Table II, E16)."""
-    if spec not in RECOMPUTED:
-        raise ValueError(f"candidate spec must be one of {sorted(RECOMPUTED)}; found {spec!r}")
-    return candidates_for(RECOMPUTED[spec], n, rig=rig, d_min=d_min, d_max=d_max)
-
-
 __all__ = [
     "DEFAULT_PANO", "KINDS", "MEASURE_UNITS", "RECOMPUTED", "TRAIN_BASELINE", "RigTerms",
-    "camera_spacing", "candidates_for", "candidates_from_logits", "check_candidates", "closed_form_steps",
-    "cumulative_displacement", "effective_baseline", "ev_candidates",
+    "camera_spacing", "candidates_for", "candidates_from_logits", "check_candidates",
+    "closed_form_steps", "cumulative_displacement", "effective_baseline", "ev_candidates",
     "fit_closed_form_baseline", "gi_candidates", "guard_candidates", "logits_from_candidates",
-    "recomputed_candidates",
-    "rig_gi_candidates", "rig_terms", "solve_equal_steps", "spacing_gi_candidates",
-    "step_uniformity", "summarize_steps",
+    "recomputed_candidates", "rig_gi_candidates", "rig_terms", "solve_equal_steps",
+    "spacing_gi_candidates", "step_uniformity", "summarize_steps",
 ]

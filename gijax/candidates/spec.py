@@ -6,7 +6,7 @@ benchmarks. A spec is
 * ``train``: the list the model was trained with; a model without one (an untrained preset)
   takes its kind in closed form: EV, or GI at the paper's training baseline (the released lists);
 * ``spacing``, ``rig``, ``ev``: a list recomputed for the rig at the model's count and range
-  (:data:`gijax.candidates.RECOMPUTED`): the paper's closed-form GI at the rig's camera
+  (:data:`gijax.candidates.kinds.RECOMPUTED`): the paper's closed-form GI at the rig's camera
   spacing, gijax's rig-aware GI, or EV;
 * anything else: a file of distances in metres (:func:`read_candidate_file`).
 
@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gijax.candidates import RECOMPUTED, ev_candidates, gi_candidates, recomputed_candidates
+from gijax.candidates.closed_form import ev_candidates, gi_candidates
+from gijax.candidates.kinds import RECOMPUTED, recomputed_candidates
 from gijax.candidates.validation import check_candidates
 
 TRAIN = "train"

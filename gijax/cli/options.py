@@ -60,6 +60,30 @@ def parse_size(text: str, what: str = "--panorama-size") -> tuple[int, int]:
     return h, w
 
 
+# Named axes accepted for an up direction, in the rig frame.
+UP_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
+
+
+def parse_up(text: str):
+    """``--up`` -> a unit rig-frame vector (NumPy float64 (3,)): an axis name (``x``, ``-y``,
+    ``+z``) or three numbers ``'a,b,c'``. ValueError naming the accepted forms otherwise."""
+    import numpy as np
+
+    t = str(text).strip().lower()
+    sign = -1.0 if t.startswith("-") else 1.0
+    name = t.lstrip("+-")
+    if name in UP_AXES:
+        return sign * np.asarray(UP_AXES[name])
+    try:
+        v = np.asarray([float(p) for p in t.split(",")], np.float64)
+    except ValueError:
+        v = np.zeros(0)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+        raise ValueError(f"up axis {text!r}: expected x, y, z with an optional sign (e.g. -y) or "
+                         f"three numbers 'a,b,c' (a non-zero rig-frame vector)")
+    return v / np.linalg.norm(v)
+
+
 def panorama_from_args(args, rig, hemisphere_hw, log=print, size=None):
     """The rig with the chosen panorama frame and the output :class:`Panorama` from --panorama,
     --up and --panorama-size (or ``size``, (H, W), when given); ``hemisphere_hw`` is the default
@@ -68,7 +92,9 @@ def panorama_from_args(args, rig, hemisphere_hw, log=print, size=None):
     from gijax.geometry.panorama_frame import choose_panorama, describe_choice, \
         with_panorama_rotation
 
-    choice = choose_panorama(rig, getattr(args, "panorama", "auto"), getattr(args, "up", None))
+    up = getattr(args, "up", None)
+    choice = choose_panorama(rig, getattr(args, "panorama", "auto"),
+                             None if up is None else parse_up(up))
     rig = with_panorama_rotation(rig, choice.rotation)
     pano = choice.panorama(hemisphere_hw)
     if size is None and getattr(args, "panorama_size", None):

@@ -4,7 +4,7 @@ from gijax.data.augment import augment_masks, augmentation_rng, erase_rectangle
 from gijax.data.loader import Loader, epoch_order, shard_order
 from gijax.data.pngio import pack_float32, unpack_float32
 from gijax.data.reader import DatasetReader, Skipped
-from gijax.data.release_layout import ReleaseDatasetReader, detect_layout, open_reader
+from gijax.data.release import ReleaseDatasetReader, detect_layout, open_reader
 from gijax.data.writer import DatasetWriter, sample_seed, write_dataset
 
 __all__ = [

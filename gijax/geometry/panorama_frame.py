@@ -36,8 +36,6 @@ COVERAGES = ("auto", "hemisphere", "sphere")
 # A rig whose every optical axis lies within this angle of the panorama pole is served by the
 # hemisphere around the pole (the paper's setting); otherwise auto chooses the full sphere.
 HEMISPHERE_CONE_DEG = 60.0
-# Named axes accepted for an up direction, in the rig frame.
-_AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
 
 def panorama_rotation(rig: Rig) -> Array:
@@ -88,24 +86,6 @@ def with_panorama_rotation(rig: Rig, rotation) -> Rig:
             raise ValueError(f"the panorama rotation must be a rotation (orthonormal, det +1); "
                              f"found |R^T R - I| = {err:.3g}, det {np.linalg.det(r):+.4f}")
     return rig.replace(panorama_rotation=rot)
-
-
-def parse_up(text: str) -> np.ndarray:
-    """An up direction from the command line: an axis name (``x``, ``-y``, ``+z``) or three
-    numbers ``'a,b,c'``, in the rig frame. ValueError naming the accepted forms otherwise."""
-    t = str(text).strip().lower()
-    sign = -1.0 if t.startswith("-") else 1.0
-    name = t.lstrip("+-")
-    if name in _AXES:
-        return sign * np.asarray(_AXES[name])
-    try:
-        v = np.asarray([float(p) for p in t.split(",")], np.float64)
-    except ValueError:
-        v = np.zeros(0)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
-        raise ValueError(f"up axis {text!r}: expected x, y, z with an optional sign (e.g. -y) or "
-                         f"three numbers 'a,b,c' (a non-zero rig-frame vector)")
-    return v / np.linalg.norm(v)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,7 +146,7 @@ def estimate_up(rig: Rig) -> tuple[np.ndarray, str]:
 def choose_panorama(rig: Rig, coverage: str = "auto", up=None) -> PanoramaChoice:
     """The panorama frame and coverage for ``rig``.
 
-    * ``up`` given (a rig-frame vector or a :func:`parse_up` string): the pole is ``up``,
+    * ``up`` given (a rig-frame vector, any length): the pole is ``up``,
       longitude 0 faces camera 0's optical axis; coverage ``auto`` means the full sphere.
     * Otherwise the rig's stored frame is kept when every optical axis lies within
       :data:`HEMISPHERE_CONE_DEG` of its pole (``auto`` then means the hemisphere: the paper's
@@ -180,7 +160,9 @@ def choose_panorama(rig: Rig, coverage: str = "auto", up=None) -> PanoramaChoice
     axes = rots[:, :, 2]
     stored = np.asarray(panorama_rotation(rig), np.float64)
     if up is not None:
-        up_v = parse_up(up) if isinstance(up, str) else np.asarray(up, np.float64)
+        if isinstance(up, str) or np.shape(up) != (3,):
+            raise ValueError(f"up must be a rig-frame vector of 3 numbers; found {up!r}")
+        up_v = np.asarray(up, np.float64)
         rot = _frame_towards(up_v, axes[0])
         cov = "sphere" if coverage == "auto" else coverage
         return PanoramaChoice(rot, cov, f"pole on the given up axis {_fmt(up_v)}, longitude 0 "

@@ -41,6 +41,7 @@ from gijax.model import OmniStereoNet, model_grids, model_panorama
 from gijax.sampling import bilinear_sample
 from gijax.sweep.consistency import view_dispersion
 from gijax.train.losses import smooth_l1_loss
+from gijax.train.step import split_model
 
 Array = jax.Array
 
@@ -199,10 +200,8 @@ def adapt_candidates(model: OmniStereoNet, rig: Rig, make_batches: Callable, ini
         stream_state = saved.get("stream")
         say(f"{folder}: resuming after step {step0}")
 
-    graphdef, state = nnx.split(model)
-    frozen = nnx.merge(graphdef, state)
-    frozen.eval()
-    eval_def, params, rest = nnx.split(frozen, nnx.Param, ...)
+    # The trainer's split, on a copy: ``model`` itself keeps its mode.
+    _, eval_def, params, rest = split_model(nnx.merge(*nnx.split(model)))
     compiled = _adapt_step(eval_def, config.loss, d_min, d_max, config.lr)
 
     def step_fn(lg, opt_state, batch):

@@ -96,11 +96,10 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
     from gijax.io.paths import check_output_dir
     from gijax.train.sources import (dataset_stream_factory, mixed_stream_factory, open_dataset,
                                      validation_batches)
+    from gijax.train.run_folder import check_run_folder, run_candidates
     from gijax.train.trainer import Trainer
 
     check_output_dir(out)
-    from gijax.train.trainer import check_run_folder
-
     check_run_folder(Path(out))          # before the data are read: never into another folder
     mc = config.model_config()
 
@@ -123,11 +122,9 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
             raise ValueError(f"training datasets {datas[0]} and {d} have different label "
                              f"panoramas ({_pano_text(reader)} vs {_pano_text(other)}); "
                              f"render them at one size and coverage")
-    from gijax.store.configs import CONFIG_FILE
-    from gijax.train.trainer import training_candidates
-
-    if not (Path(out) / CONFIG_FILE).exists():   # a new run: a bad list is reported first
-        training_candidates(config, reader.rig)
+    # The run's list, resolved once: the run folder's own on resume, else the configuration's
+    # (a bad list is reported before anything else about the data).
+    candidates = run_candidates(config, out, reader.rig)
     config, mc = fit_panorama(config, reader, log=print if progress else None)
     if rig:
         from gijax.io.rigfile import load_rig
@@ -163,7 +160,8 @@ def train(config: TrainConfig, data, out: str | os.PathLike, *,
     try:
         trainer = Trainer(config, out, train_rigs, make_stream, make_val,
                           rig_name=rig or ", ".join(map(str, datas)),
-                          progress=progress, val_rig=val_rig, invocation=invocation)
+                          progress=progress, val_rig=val_rig, invocation=invocation,
+                          candidates=candidates)
         try:
             history = trainer.fit(stop_at)
         finally:

@@ -88,13 +88,13 @@ def open_dataset(path: str | Path, what: str = "training", allow_partial: bool =
     layout, for an incomplete one unless ``allow_partial``).
 
     The layout is detected from the folder's files
-    (:func:`gijax.data.release_layout.detect_layout`): gijax's own
+    (:func:`gijax.data.release.detect_layout`): gijax's own
     (:class:`gijax.data.DatasetReader`) or the paper's released layout
-    (:class:`gijax.data.release_layout.ReleaseDatasetReader`). For the release layout the
+    (:class:`gijax.data.release.ReleaseDatasetReader`). For the release layout the
     data_partitions.json partition is ``train`` for training and ``validate`` otherwise, as in
     the release; ``DIR@KEY`` selects partition ``KEY`` instead.
     """
-    from gijax.data.release_layout import detect_layout, open_reader
+    from gijax.data.release import detect_layout, open_reader
 
     text = str(path)
     split = "train" if what == "training" else "validate"

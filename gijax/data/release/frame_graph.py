@@ -1,0 +1,106 @@
+"""The release's frame_graph.json: named frames linked by rigid transforms."""
+
+from __future__ import annotations
+
+import collections
+from pathlib import Path
+
+import numpy as np
+
+from gijax.data import format as fmt
+
+
+def _orientation(doc, where) -> np.ndarray:
+    kind = fmt.require(doc, "type", where, str)
+    data = fmt.require(doc, "data", where, (list, dict))
+    if kind == "rotation_matrix":
+        m = np.asarray(data, np.float64)
+        if m.size != 9:
+            raise ValueError(f"{where}: rotation_matrix data must hold 9 numbers (row-major "
+                             f"3x3); found {m.size}")
+        return m.reshape(3, 3)
+    if kind == "quaternion":
+        if not isinstance(data, dict):
+            raise ValueError(f"{where}: quaternion data must be an object with x, y, z, w")
+        q = np.array([fmt.require(data, k, where, (int, float)) for k in "wxyz"], np.float64)
+        n = np.linalg.norm(q)
+        if n == 0:
+            raise ValueError(f"{where}: quaternion has zero norm")
+        w, x, y, z = q / n  # the release's pyquaternion normalises before building the matrix
+        return np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    raise ValueError(f"{where}: orientation type must be 'rotation_matrix' or 'quaternion'; "
+                     f"found {kind!r}")
+
+
+def _pose(doc, where) -> np.ndarray:
+    t = np.asarray(fmt.require(doc, "position", where, list), np.float64)
+    if t.shape != (3,):
+        raise ValueError(f"{where}: position must hold 3 numbers; found {t.size}")
+    T = np.eye(4)
+    T[:3, :3] = _orientation(fmt.require(doc, "orientation", where, dict), f"{where} orientation")
+    T[:3, 3] = t
+    return T
+
+
+class FrameGraph:
+    """frame_graph.json: 4x4 transforms ``T_f0_f1`` (``p_f0 = T_f0_f1 @ p_f1``), metres."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        doc = fmt.load_json(path, "frame graph")
+        frames = fmt.require(doc, "frames", path, list)
+        typical = fmt.require(doc, "typical_poses", path, dict)
+        transforms = fmt.require(doc, "transforms", path, list)
+        self.edges: dict[str, dict[str, np.ndarray]] = collections.defaultdict(dict)
+        for k, f in enumerate(frames):
+            name = fmt.require(f, "name", f"{path} frames[{k}]", str)
+            self.edges.setdefault(name, {})
+        poses = {key: _pose(v, f"{path} typical_poses[{key!r}]") for key, v in typical.items()}
+        for k, tr in enumerate(transforms):
+            where = f"{path} transforms[{k}]"
+            f0 = fmt.require(tr, "f0", where, str)
+            f1 = fmt.require(tr, "f1", where, str)
+            pose = fmt.require(tr, "pose", where, dict)
+            kind = fmt.require(pose, "type", f"{where} pose", str)
+            if kind == "create":
+                T = _pose(pose, f"{where} pose")
+            elif kind == "reference":
+                key = fmt.require(pose, "key", f"{where} pose", str)
+                if key not in poses:
+                    raise ValueError(f"{where}: pose references typical_poses[{key!r}], which "
+                                     f"does not exist; found {sorted(poses)}")
+                T = poses[key]
+            else:
+                raise ValueError(f"{where}: pose type must be 'create' or 'reference'; found "
+                                 f"{kind!r}")
+            self.edges[f0][f1] = T
+            self.edges[f1][f0] = np.linalg.inv(T)
+
+    def query(self, f0: str, f1: str, why: str = "") -> np.ndarray:
+        """``T_f0_f1`` along the shortest chain of transforms (as the release's FrameGraph)."""
+        for f in (f0, f1):
+            if f not in self.edges:
+                suffix = f" ({why})" if why else ""
+                raise ValueError(f"{self.path}: no frame {f!r}{suffix}; frames are "
+                                 f"{sorted(self.edges)}")
+        prev = {f0: None}
+        queue = collections.deque([f0])
+        while queue and f1 not in prev:
+            a = queue.popleft()
+            for b in self.edges[a]:
+                if b not in prev:
+                    prev[b] = a
+                    queue.append(b)
+        if f1 not in prev:
+            raise ValueError(f"{self.path}: no chain of transforms links frames {f0!r} and {f1!r}")
+        chain = [f1]
+        while prev[chain[-1]] is not None:
+            chain.append(prev[chain[-1]])
+        chain.reverse()
+        T = np.eye(4)
+        for a, b in zip(chain[:-1], chain[1:]):
+            T = T @ self.edges[a][b]
+        return T
