@@ -136,6 +136,23 @@ def test_rig_as_input_second_rig_equals_fresh_baked_export(setup):
         OnnxPredictor(fresh.path).predict(rig2, images, candidates=CAND)
 
 
+def test_matching_cost_model_exports_and_matches_jax(tmp_path):
+    """The matching-cost channel (grey sampling, cell ZNCC) exports at opset 17 with sums only
+    (ReduceMean / ReduceMin would need axes attributes), matches JAX and stays TensorRT-clean."""
+    cfg = dataclasses.replace(TINY, name="tiny-zncc", matching_cost="zncc", matching_samples=2)
+    rig = load_rig("paper-train")
+    model = create_model(cfg, seed=1)
+    images, masks = rendered_inputs(cfg, rig, seed=3)
+    ref = jax_reference(model, rig, images, masks, CAND)
+    exported = export_onnx(model, rig, CAND, tmp_path / "zncc.onnx")
+    out = OnnxPredictor(exported.path, providers=["CPUExecutionProvider"]).predict(
+        rig, images[0], masks[0])
+    np.testing.assert_allclose(out["inv_distance"], ref["inv_distance"][0], atol=1e-4, rtol=0)
+    report = check_model(exported.path)
+    assert report.ok(), report.table()
+    assert report.op_counts.get("ReduceMean", 0) == 0
+
+
 def test_concat_model_refuses_other_camera_count():
     cfg = dataclasses.replace(TINY, name="tiny-concat", cost_volume="concat", unet_in=12)
     model = create_model(cfg)

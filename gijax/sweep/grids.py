@@ -215,7 +215,8 @@ def match_grey(surrogates: Array, masks: Array, grids: SweepGrids,
     is linear), so one gather moves two channels, not four."""
     if grids.match_px is None:
         raise ValueError("these sweep grids have no match grids (made without match samples)")
-    grey = jnp.mean(surrogates, axis=-1, keepdims=True)
+    # A sum, not a mean: ReduceMean's axes are an attribute at the export's opset 17.
+    grey = jnp.sum(surrogates, axis=-1, keepdims=True) * (1.0 / surrogates.shape[-1])
     sampled, seen = _sample_colours(grey, masks, grids.match_px, grids.match_ok, boundary,
                                     "the matching cost")
     return sampled[..., 0], seen

@@ -64,10 +64,12 @@ def cell_zncc(grey: Array, seen: Array, samples: int, eps: float = TEXTURE_EPS) 
     # Reshapes only (no copy): cell rows on axis 2 (candidate-major), the cell's own samples on
     # axes 3 and 5. Few axes on purpose: XLA's CPU backend (jaxlib 0.10) crashes executing some
     # fused reductions of 8-axis arrays.
+    # Sums only, no mean or min: the ONNX export's opset (17) takes ReduceSum's axes as an input
+    # but ReduceMean's and ReduceMin's as attributes, which jax2onnx does not write.
     x = grey.reshape(b, n, d * h, k, w, k)
-    part = jnp.min(seen.astype(dtype).reshape(b, n, d * h, k, w, k), axis=(3, 5))
-    part = (part > 0).astype(dtype)                              # (B, N, D h, w)
-    mean = jnp.mean(x, axis=(3, 5), keepdims=True)
+    points = jnp.sum((seen > 0).astype(dtype).reshape(b, n, d * h, k, w, k), axis=(3, 5))
+    part = (points > size - 0.5).astype(dtype)                   # (B, N, D h, w): all seen
+    mean = jnp.sum(x, axis=(3, 5), keepdims=True) * (1.0 / size)
     centred = x - mean
     sq = jnp.sum(centred * centred, axis=(3, 5))                 # (B, N, D h, w)
     scale = jax.lax.rsqrt(sq + eps * size) * part                # 0 for cameras left out
