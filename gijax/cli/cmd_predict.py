@@ -69,6 +69,8 @@ def register(subparsers) -> None:
                                    "list for --method rtss")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no elapsed-time line while the method runs (drawn only on a terminal)")
     add_panorama_options(p, "160x640 (RTSS) or the model's output size")
     p.set_defaults(func=run)
 
@@ -128,7 +130,11 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     from gijax.store.envelope import warn_if_outside_training
 
     warn_if_outside_training(rig, args.ckpt, config.name)
-    result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
+    from gijax.cli.waiting import working
+
+    with working(f"{config.name} network (compiles on the first call)",
+                 enabled=not args.no_progress):
+        result = LearnedPredictor(model, candidates, pano).predict(rig, images, masks, log=print)
     title = f"{label}; candidates: {how}"
     _report(result, rig, args, title)
     return 0
@@ -165,7 +171,11 @@ def _run_rtss(args, rig, images: np.ndarray, masks) -> int:
     check_prediction(pano.shape, len(candidates))
     print(f"candidates: {how}; {len(candidates)} from {float(candidates[0]):.3f} to "
           f"{float(candidates[-1]):.3f} m")
-    result = RtssPredictor(args.rtss_preset, candidates, pano).predict(rig, images, masks)
+    from gijax.cli.waiting import working
+
+    with working(f"{args.rtss_preset} sphere sweep (compiles on the first call)",
+                 enabled=not args.no_progress):
+        result = RtssPredictor(args.rtss_preset, candidates, pano).predict(rig, images, masks)
     _report(result, rig, args, f"classical baseline {args.rtss_preset}; candidates: {how}")
     return 0
 
@@ -190,7 +200,10 @@ def _run_onnx(args, rig, images: np.ndarray, masks) -> int:
         config = model_config_from_dict(pred.info.config)
         candidates = model_candidates(args.candidates, rig, config)[0]
     rig = pred.info.oriented_rig(rig)
-    result = pred.predict(rig, images, masks, candidates, log=print)
+    from gijax.cli.waiting import working
+
+    with working("onnxruntime", enabled=not args.no_progress):
+        result = pred.predict(rig, images, masks, candidates, log=print)
     small = pred.info.scaled_rig(rig)
     feed_images = pred.info.feed(rig, images, masks)[0]["images"][0]
     result = result.replace(colour=point_colours(small, feed_images, None, result.distance,
