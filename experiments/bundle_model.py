@@ -25,6 +25,18 @@ config, PROVENANCE.json with every command, the learning curve and the validatio
     python experiments/bundle_model.py --scale smoke                 # pipeline check
     python experiments/bundle_model.py --scale cpu                   # hours on 2 cores; resumable
     python experiments/bundle_model.py --scale cpu --publish gijax/assets/G16VV-cpu
+
+The long training (``--recipe long``) trains a CPU-scale design (``--design``, a preset of
+``gijax.nn.presets``; chosen by ``experiments/design_comparison.py``) from random weights on
+the same mixture for :data:`LONG_RECIPES`' step count, in pieces: ``--until STEP`` trains to a
+milestone and stops there, evaluates the best checkpoint so far (and publishes it with
+``--publish``); the resume pack (weights, BatchNorm statistics, Adam's moments, step, data
+position: ``gijax train --pack``) is rewritten at every checkpoint under
+``experiments/packs/long-<design>/``, small enough to commit at every stop, and the same command
+continues from it on any machine (the data is re-rendered by its recorded commands when
+missing):
+
+    python experiments/bundle_model.py --scale cpu --recipe long --design G16VV-cpu --until 4000
 """
 
 from __future__ import annotations
@@ -54,6 +66,7 @@ from experiments.workfolder import (dataset_seeds, ensure_dataset, gijax_command
 from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "bundle_model"
+LONG_NAME = "long_training"
 MODEL = "G16VV"
 RING = "ring5-0.5m"
 TESTS = ("paper-test1", "paper-test2", "paper-test3", RING)
@@ -95,6 +108,19 @@ RECIPES = {
                   warmup=60, val_every=300, ckpt_every=150, augment="photometric+body",
                   calibration_deg=0.5, workers=2, init_from="G16VV-cpu"),
 }
+
+# The long training of a design from random weights: a cosine schedule over a horizon longer
+# than any one sitting, trained in pieces (--until) that each resume from the committed pack.
+LONG_RECIPES = {
+    "smoke": Recipe(scenes=2, lens_variants=1, layouts=1, steps=4, batch=2, lr=4e-4, warmup=1,
+                    val_every=2, ckpt_every=2, augment="photometric+body", calibration_deg=0.5,
+                    workers=1),
+    "cpu": Recipe(scenes=250, lens_variants=3, layouts=4, steps=40000, batch=8, lr=4e-4,
+                  warmup=400, val_every=1000, ckpt_every=250, augment="photometric+body",
+                  calibration_deg=0.5, workers=2),
+}
+RECIPE_KINDS = ("finetune", "long")
+DEFAULT_DESIGN = "G16VV-cpu"
 
 # Where the bundle is expected to fail, as its provenance and the demo state it.
 LIMITATIONS = ("rigs unlike its mixture (cameras not facing one way, more than 4 cameras, or "
@@ -201,28 +227,65 @@ def prepare(work: Path, scale: Scale, recipe: Recipe) -> list:
 
 # --------------------------------------------------------------------------- training
 
-def run_folder(work: Path, scale: Scale) -> Path:
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """Which training of the bundle: the fine-tuning recipe of the bundled design, or the long
+    training of a design (:data:`LONG_RECIPES`) with its resume pack."""
+
+    kind: str = "finetune"             # one of RECIPE_KINDS
+    design: str = DEFAULT_DESIGN       # a CPU-scale preset name
+    pack: Optional[Path] = None        # the long training's resume pack folder
+
+    @property
+    def recipe_table(self) -> dict:
+        return LONG_RECIPES if self.kind == "long" else RECIPES
+
+
+FINETUNE = Plan()
+
+
+def design_preset(scale: Scale, design: str) -> str:
+    """A CPU-scale design's preset at ``scale`` (the paper-size twin drops the suffix)."""
+    return design if scale.name != "paper" else design.replace("-cpu", "")
+
+
+def run_folder(work: Path, scale: Scale, plan: Plan = FINETUNE) -> Path:
+    if plan.kind == "long":
+        return work / "runs" / f"long-{design_preset(scale, plan.design)}"
     return work / "runs" / f"bundle-{preset_name(scale, MODEL)}"
 
 
-def train_config(scale: Scale, recipe: Recipe, seed: int):
+def long_pack_folder(scale: Scale, design: str, out: Path) -> Path:
+    """Committed packs for the cpu scale; the other scales keep theirs with the output."""
+    if scale.name == "cpu":
+        return Path(__file__).resolve().parent / "packs" / f"long-{design}"
+    return out / "packs" / f"long-{design}"
+
+
+def train_config(scale: Scale, recipe: Recipe, seed: int, plan: Plan = FINETUNE):
+    from experiments.scales import design_overrides
     from gijax.train.config import TrainConfig
 
-    return TrainConfig(preset=preset_name(scale, MODEL),
-                       model_overrides=model_overrides(scale, MODEL), lr=recipe.lr,
+    if plan.kind == "long":
+        preset, over = design_preset(scale, plan.design), design_overrides(scale, plan.design)
+    else:
+        preset, over = preset_name(scale, MODEL), model_overrides(scale, MODEL)
+    return TrainConfig(preset=preset, model_overrides=over, lr=recipe.lr,
                        schedule="warmup_cosine", warmup_steps=recipe.warmup,
                        batch_size=recipe.batch, steps=recipe.steps, seed=seed,
                        val_every=recipe.val_every, ckpt_every=recipe.ckpt_every,
                        keep_best=True, workers=recipe.workers, augment=recipe.augment,
-                       calibration_error_deg=recipe.calibration_deg, init_from=recipe.init_from)
+                       calibration_error_deg=recipe.calibration_deg, init_from=recipe.init_from,
+                       pack=None if plan.pack is None else str(plan.pack))
 
 
-def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) -> list:
+def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list,
+               plan: Plan = FINETUNE) -> list:
     """The ``gijax train`` command equivalent to :func:`ensure_trained`'s call."""
-    cfg = train_config(scale, recipe, seed)
+    cfg = train_config(scale, recipe, seed, plan)
     argv = ["train", "--preset", cfg.preset, "--data",
             *[d["path"] for d in data if d["role"].startswith("mix-")],
-            "--val", work / "data" / "val", "--out", run_folder(work, scale),
+            "--val", work / "data" / "val", "--out", run_folder(work, scale, plan),
             "--steps", cfg.steps, "--batch", cfg.batch_size, "--lr", cfg.lr,
             "--schedule", cfg.schedule, "--warmup-steps", cfg.warmup_steps,
             "--val-every", cfg.val_every, "--ckpt-every", cfg.ckpt_every, "--seed", seed,
@@ -230,6 +293,8 @@ def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) 
             "--calibration-error", cfg.calibration_error_deg]
     if cfg.init_from:
         argv += ["--init-from", cfg.init_from]
+    if cfg.pack:
+        argv += ["--pack", cfg.pack]
     for k, v in cfg.model_overrides.items():
         argv += ["--override", f"{k}={json.dumps(v, separators=(',', ':'))}"]
     if not scale.progress:
@@ -237,15 +302,22 @@ def train_argv(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) 
     return argv
 
 
-def ensure_trained(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list) -> dict:
-    """Train (or resume) the bundle's run to ``recipe.steps``, or reuse it when finished; its
-    record (with :func:`initial_weights` under ``init``)."""
-    command = gijax_command(train_argv(work, scale, recipe, seed, data))
-    init = initial_weights(run_folder(work, scale), recipe)
-    trained = train_run(run_folder(work, scale), command, train_config(scale, recipe, seed),
+def ensure_trained(work: Path, scale: Scale, recipe: Recipe, seed: int, data: list,
+                   plan: Plan = FINETUNE, until: Optional[int] = None) -> dict:
+    """Train (or resume, from the run folder or the plan's pack) the bundle's run to
+    ``recipe.steps``, or to the milestone ``until`` when it is smaller, or reuse it when
+    finished; its record (with :func:`initial_weights` under ``init`` and the last logged
+    step under ``trained_steps``)."""
+    run = run_folder(work, scale, plan)
+    command = gijax_command(train_argv(work, scale, recipe, seed, data, plan))
+    init = initial_weights(run, recipe)
+    model = MODEL if plan.kind == "finetune" else plan.design
+    trained = train_run(run, command, train_config(scale, recipe, seed, plan),
                         [d["path"] for d in data if d["role"].startswith("mix-")],
-                        work / "data" / "val", scale.progress, {"model": MODEL})
-    return {**trained, "init": init}
+                        work / "data" / "val", scale.progress, {"model": model}, stop_at=until)
+    from experiments.workfolder import last_logged_step
+
+    return {**trained, "init": init, "trained_steps": last_logged_step(run)}
 
 
 def initial_weights(run: Path, recipe: Recipe) -> Optional[dict]:
@@ -434,7 +506,8 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"scenes: paper-train through its own lens and {lenses} drawn lenses, "
                           f"{layouts} random 3-4 camera layouts 0.25-0.8 m apart through drawn "
                           f"lenses (equidistant, Kannala-Brandt, Double Sphere, 180-240 deg); "
-                          f"training: {recipe.steps} steps of {recipe.batch}, augmentation "
+                          f"training: {trained.get('trained_steps', recipe.steps)} steps of "
+                          f"{recipe.batch}, augmentation "
                           f"{recipe.augment}, calibration errors up to "
                           f"{recipe.calibration_deg:g} deg, starting from {start}"),
            "initialised_from": init,
@@ -484,11 +557,37 @@ def main(argv=None) -> int:
                              "G16VV-cpu at the cpu scale, none at other scales; 'none': skip)")
     parser.add_argument("--publish", default=None, metavar="DIR",
                         help="write the new bundle, its provenance and figures to DIR")
+    parser.add_argument("--recipe", choices=RECIPE_KINDS, default="finetune",
+                        help="'finetune' (default): the bundled design fine-tuned from the "
+                             "bundle for the recipe's steps; 'long': --design trained from "
+                             "random weights for LONG_RECIPES' steps, in pieces, resuming from "
+                             "its committed pack")
+    parser.add_argument("--design", default=DEFAULT_DESIGN, metavar="PRESET",
+                        help=f"the CPU-scale design of --recipe long (default {DEFAULT_DESIGN}; "
+                             f"the designs are compared by experiments/design_comparison.py)")
+    parser.add_argument("--until", type=int, default=None, metavar="STEP",
+                        help="train only to this step (a milestone), then evaluate and "
+                             "publish what the run has; the same command with a later STEP "
+                             "continues")
     args = parser.parse_args(argv)
-    if args.scale not in RECIPES:
-        parser.error(f"--scale {args.scale}: this recipe has scales {sorted(RECIPES)}")
-    scale, recipe = SCALES[args.scale], RECIPES[args.scale]
-    work, out, results = resolve_paths(args, NAME)
+    recipes = LONG_RECIPES if args.recipe == "long" else RECIPES
+    if args.scale not in recipes:
+        parser.error(f"--scale {args.scale}: the {args.recipe} recipe has scales "
+                     f"{sorted(recipes)}")
+    if args.recipe != "long" and args.design != DEFAULT_DESIGN:
+        parser.error("--design chooses the design of --recipe long (the fine-tuning recipe "
+                     f"trains the bundled {DEFAULT_DESIGN})")
+    from gijax.nn.presets import get_preset
+
+    get_preset(args.design)                       # one line naming the valid presets
+    if args.until is not None and args.until < 1:
+        parser.error(f"--until must be a positive step; found {args.until}")
+    scale, recipe = SCALES[args.scale], recipes[args.scale]
+    # The long training reports in its own section; the fine-tuning recipe in the bundle's.
+    name = NAME if args.recipe == "finetune" else LONG_NAME
+    work, out, results = resolve_paths(args, name)
+    plan = (Plan("long", args.design, long_pack_folder(scale, args.design, out))
+            if args.recipe == "long" else FINETUNE)
     started, durations = time.time(), {}
 
     t0 = time.perf_counter()
@@ -496,9 +595,9 @@ def main(argv=None) -> int:
     data = prepare(work, scale, recipe)
     durations["data"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    trained = ensure_trained(work, scale, recipe, args.seed, data)
+    trained = ensure_trained(work, scale, recipe, args.seed, data, plan, args.until)
     durations["training"] = time.perf_counter() - t0
-    run = run_folder(work, scale)
+    run = run_folder(work, scale, plan)
     models = {"new bundle": run}
     previous = args.previous or ("gijax/assets/G16VV-cpu" if scale.name == "cpu" else "none")
     if previous != "none":
@@ -513,28 +612,33 @@ def main(argv=None) -> int:
     figures = write_figures(out, work, scale, preds, run)
     prov = provenance_record(f"{NAME}.py", argv, scale, args.seed, work, started, durations,
                              data)
-    prov["recipe"] = dataclasses.asdict(recipe)
+    prov["recipe"] = {**dataclasses.asdict(recipe), "kind": plan.kind, "design": plan.design,
+                      "until": args.until}
     doc = {"table": NAME, "rows": rows, "targets": targets, "training": trained,
            "figures": {k: v.name for k, v in figures.items()}, "provenance": prov}
     target_lines = "\n".join(
         f"- **{t['status']}** `{t['test']}`: {t['target']} ("
         + ", ".join(f"{k} {v:.4f}" for k, v in t["numbers"].items()) + ")" for t in targets)
     md = "\n\n".join([
-        f"G16VV trained on the mixture ({len(mixture_roles(recipe))} datasets of "
+        f"{plan.design if plan.kind == 'long' else MODEL} trained on the mixture "
+        f"({len(mixture_roles(recipe))} datasets of "
         f"{recipe.scenes} scenes: paper-train, paper-train through drawn lenses, random "
-        f"layouts through drawn lenses), {recipe.steps} steps of {recipe.batch}, evaluated on "
+        f"layouts through drawn lenses), {trained['trained_steps']} of {recipe.steps} steps of "
+        f"{recipe.batch} ({'from random weights' if plan.kind == 'long' else 'fine-tuned'}), "
+        f"evaluated on "
         f"the tables' held-out scenes (inverse distance, 1/m, the paper's metric definitions; "
         f"'spacing' is the paper's recomputed list, the closed form at the rig's camera "
         f"spacing).", table_markdown(rows), "## Targets", target_lines,
         f"![learning curve]({figures['curve'].name})",
         *(f"![{t}]({figures[t].name})" for t in TESTS),
         "## Provenance", provenance_markdown(prov)])
-    save_table(out, "The bundled model", md, doc)
+    save_table(out, "The bundled model" if name == NAME else "The long training", md, doc)
     if results is not None:
-        publish_section(results, NAME, md, figures.values())
+        publish_section(results, name, md, figures.values())
     if args.publish:
-        publish(run, Path(args.publish), preset_name(scale, MODEL), recipe, figures, prov, data,
-                trained, targets)
+        model = (design_preset(scale, plan.design) if plan.kind == "long"
+                 else preset_name(scale, MODEL))
+        publish(run, Path(args.publish), model, recipe, figures, prov, data, trained, targets)
     return 0
 
 

@@ -48,7 +48,7 @@ from experiments.arguments import EXPERIMENTS, add_common_arguments, resolve_pat
 from experiments.provenance import provenance_markdown, provenance_record, revision  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, read_json, save_png,  # noqa: E402
                                    save_table, write_json)
-from experiments.scales import SCALES, Scale, model_overrides  # noqa: E402
+from experiments.scales import SCALES, Scale, design_overrides  # noqa: E402
 from experiments.workfolder import gijax_command, metrics_records, train_run  # noqa: E402
 
 NAME = "design_comparison"
@@ -85,15 +85,7 @@ def design_preset(scale: Scale, design: str) -> str:
 
 def overrides(scale: Scale, design: str) -> dict:
     """The scale's shrinking of the bundle's model (smoke), kept consistent per design."""
-    if not scale.tiny:
-        return {}
-    over = dict(model_overrides(scale, BM.MODEL))
-    from gijax.nn.presets import get_preset
-
-    cfg = get_preset(design)
-    if cfg.output_stride == 1:          # the cost volume at the output's size
-        over["cost_hw"] = list(over.get("output_hw", cfg.output_hw))
-    return over
+    return design_overrides(scale, design)
 
 
 # --------------------------------------------------------------------------- budget

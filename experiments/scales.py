@@ -123,3 +123,18 @@ def model_overrides(scale: Scale, model: str) -> dict:
             "unet_in": channels * base.num_cameras if base.cost_volume == "concat" else channels,
             "surrogate_hw": [2 * h, 2 * w], "cost_hw": [h // 2, w // 2], "output_hw": [h, w],
             "image_scale": scale.image_scale}
+
+
+def design_overrides(scale: Scale, design: str) -> dict:
+    """The scale's shrinking of a CPU-scale design preset (e.g. 'G16VV-cpu-zncc'): the
+    bundle model's smoke overrides, with the cost volume kept at the output's size for a
+    design whose cost volume is there (``output_stride`` 1). Empty except at the smoke scale."""
+    if not scale.tiny:
+        return {}
+    from gijax.nn.presets import get_preset
+
+    over = dict(model_overrides(scale, "G16VV"))
+    cfg = get_preset(design)
+    if cfg.output_stride == 1:
+        over["cost_hw"] = list(over.get("output_hw", cfg.output_hw))
+    return over

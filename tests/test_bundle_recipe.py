@@ -115,3 +115,27 @@ def test_training_command_names_every_mixture_folder_and_the_recipe(tmp_path):
                         ("--schedule", "warmup_cosine"), ("--steps", "600"),
                         ("--batch", "8"), ("--init-from", "G16VV-cpu")):
         assert argv[argv.index(flag) + 1] == value
+
+
+def test_the_long_recipe_trains_its_design_from_random_weights_with_a_committed_pack(tmp_path):
+    """``--recipe long``: the design's own preset (smoke overrides at the smoke scale), random
+    weights, the pack folder under experiments/packs/ at the cpu scale (committed) and beside
+    the output elsewhere, and the pack in the recorded command so that the command resumes."""
+    plan = B.Plan("long", "G16VV-cpu-zncc", B.long_pack_folder(scales.SCALES["cpu"],
+                                                               "G16VV-cpu-zncc", tmp_path))
+    assert plan.pack == Path(B.__file__).resolve().parent / "packs" / "long-G16VV-cpu-zncc"
+    recipe = B.LONG_RECIPES["cpu"]
+    cfg = B.train_config(scales.SCALES["cpu"], recipe, 0, plan)
+    assert cfg.preset == "G16VV-cpu-zncc" and cfg.model_overrides == {}
+    assert cfg.init_from is None and cfg.steps == recipe.steps and cfg.pack == str(plan.pack)
+    argv = [str(a) for a in B.train_argv(tmp_path, scales.SCALES["cpu"], recipe, 0, [], plan)]
+    assert argv[argv.index("--pack") + 1] == str(plan.pack)
+    assert argv[argv.index("--out") + 1] == str(tmp_path / "runs" / "long-G16VV-cpu-zncc")
+    smoke = B.train_config(scales.SCALES["smoke"], B.LONG_RECIPES["smoke"], 0,
+                           B.Plan("long", "G16VV-cpu-fine", None))
+    # The fine design keeps its cost volume at the output's size when shrunk.
+    assert smoke.model_overrides["cost_hw"] == smoke.model_overrides["output_hw"]
+    assert B.long_pack_folder(scales.SCALES["smoke"], "x", tmp_path) == tmp_path / "packs" / "long-x"
+    # The fine-tuning recipe is unchanged: the bundle's preset from the bundle, no pack.
+    fine = B.train_config(scales.SCALES["cpu"], B.RECIPES["cpu"], 0)
+    assert fine.preset == "G16VV-cpu" and fine.init_from == "G16VV-cpu" and fine.pack is None
