@@ -201,7 +201,8 @@ def _weights(path):
 
 
 def test_adaptation_resumes_to_the_uninterrupted_state_and_writes_a_loadable_bundle(setup):
-    from gijax.store import load_model, read_provenance
+    from gijax.store import load_model
+    from gijax.store.bundles import read_provenance
     from gijax.train.rig_adaptation import adapt_network
 
     obj = LabelFree(photometric=1.0, smoothness=0.01)
