@@ -21,7 +21,25 @@ from gijax.train.unlabeled import (LabelFree, edge_aware_smoothness, label_free_
                                    normalize_gain, photometric_loss, teacher_confidence,
                                    teacher_loss)
 
-pytestmark = pytest.mark.usefixtures("quick_compiles")
+pytestmark = pytest.mark.usefixtures("quick_compiles", "compile_cache")
+
+
+@pytest.fixture(scope="module")
+def compile_cache():
+    """The adaptation runs compile the same training step: the persistent cache (the one the
+    training tests share) compiles it once."""
+    from test_train_faults import CACHE
+
+    old = (jax.config.jax_compilation_cache_dir,
+           jax.config.jax_persistent_cache_min_compile_time_secs,
+           jax.config.jax_persistent_cache_min_entry_size_bytes)
+    jax.config.update("jax_compilation_cache_dir", str(CACHE))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    yield
+    jax.config.update("jax_compilation_cache_dir", old[0])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", old[1])
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", old[2])
 
 # The tiny network of tests/test_model.py (TINY_VAR) on the paper's rig at 1/16 (64 px).
 TINY = ModelConfig(
@@ -200,69 +218,80 @@ def _weights(path):
         return {k: z[k] for k in z.files}
 
 
-def test_adaptation_resumes_to_the_uninterrupted_state_and_writes_a_loadable_bundle(setup):
+def test_frame_folders_are_resized_to_the_model_and_carry_no_labels(setup):
+    from gijax.train.rig_adaptation import adaptation_rig, frame_arrays
+
+    rig, text, calibrated = adaptation_rig(setup["frames"], "paper-train", TINY.panorama)
+    assert calibrated and text == "paper-train"
+    run_rig, arrays, labels, images, _ = frame_arrays(setup["frames"], rig, TINY, calibrated)
+    # The calibrated 1024 px rig at the model's image scale 1/16; the 128 px frames resized.
+    assert (run_rig.cameras[0].height, run_rig.cameras[0].width) == (64, 64)
+    assert images.shape == (2, 3, 64, 64, 3) and labels == setup["frames"]
+    assert arrays["surrogates"].shape == (2, 3, *TINY.surrogate_hw, 3)
+    assert np.isnan(arrays["distance"]).all() and not arrays["valid"].any()
+    # A dataset brings its rig and its size; its labels are not carried either.
+    rig, _, calibrated = adaptation_rig([setup["data"]], None, TINY.panorama)
+    assert not calibrated and rig.cameras[0].width == 128
+    _, arrays, labels, _, _ = frame_arrays([setup["data"]], rig, TINY, calibrated)
+    assert labels == [f"{setup['data']}#0", f"{setup['data']}#1"]
+    assert np.isnan(arrays["distance"]).all() and not arrays["valid"].any()
+
+
+def test_adaptation_ignores_labels_resumes_exactly_and_writes_a_loadable_bundle(setup, capsys):
+    """One run on a dataset whose labels are wrong, uninterrupted; another on a copy with
+    other labels, stopped after one step and finished by the command (with the first dataset
+    as --val): the same weights (the labels never reach the objective, and the resumed run
+    continues exactly); the bundle loads like any other and says where it came from."""
+    from gijax.cli import main
+    from gijax.data import write_dataset
+    from gijax.data.reader import DatasetReader
     from gijax.store import load_model
     from gijax.store.bundles import read_provenance
     from gijax.train.rig_adaptation import adapt_network
 
-    obj = LabelFree(photometric=1.0, smoothness=0.01)
-    kw = dict(rig="paper-train", objective=obj, steps=4, lr=1e-3, batch_size=1, ckpt_every=2,
-              progress=False, log=None)
     root = setup["root"]
-    whole = adapt_network(setup["bundle"], setup["frames"], root / "whole", **kw)
-    adapt_network(setup["bundle"], setup["frames"], root / "pieces", stop_at=2, **kw)
-    pieces = adapt_network(setup["bundle"], setup["frames"], root / "pieces", **kw)
-    assert whole.step == pieces.step == 4
-    a, b, start = _weights(whole.bundle), _weights(pieces.bundle), _weights(setup["bundle"])
+    reader = DatasetReader(setup["data"])
+    write_dataset(root / "data2", lambda i: dict(reader[i], pano_distance=np.full(
+        TINY.output_hw, 0.6, np.float32)), reader.rig, PANO, num_samples=2)
+    obj = LabelFree(photometric=1.0, smoothness=0.01)
+    kw = dict(objective=obj, steps=2, lr=1e-3, batch_size=1, ckpt_every=1, progress=False,
+              log=None)
+    whole = adapt_network(setup["bundle"], [setup["data"]], root / "whole", **kw)
+    adapt_network(setup["bundle"], [str(root / "data2")], root / "pieces", stop_at=1, **kw)
+    args = ["adapt", "--ckpt", str(setup["bundle"]), "--steps", "2", "--batch", "1",
+            "--lr", "1e-3", "--ckpt-every", "1", "--no-progress"]
+    assert main([*args, "--frames", str(root / "data2"), "--out", str(root / "pieces"),
+                 "--val", setup["data"]]) == 0
+    printed = capsys.readouterr().out
+    assert "validation (labels of" in printed and "not used for adapting" in printed
+    a, b, start = _weights(whole.bundle), _weights(root / "pieces"), _weights(setup["bundle"])
     assert a.keys() == b.keys()
     for k in a:
         np.testing.assert_allclose(a[k], b[k], rtol=1e-5, atol=1e-7, err_msg=k)
     assert any(not np.allclose(a[k], start[k]) for k in a), "the weights did not move"
-    # The loss terms are logged, the loss is finite, each step once.
-    lines = [json.loads(x) for x in (whole.work / "metrics.jsonl").read_text().splitlines()]
+    # Each step's loss and its terms logged once; the validation score logged as such.
+    lines = [json.loads(x) for x in (root / "pieces.adapt" / "metrics.jsonl").read_text()
+             .splitlines()]
     steps = [r for r in lines if "loss" in r]
-    assert [r["step"] for r in steps] == [1, 2, 3, 4]
+    assert [r["step"] for r in steps] == [1, 2]
     assert all(np.isfinite(r["loss"]) and "loss_photometric" in r and "loss_smoothness" in r
                and np.isfinite(r["grad_norm"]) and r["grad_norm"] > 0 for r in steps)
+    assert [r["step"] for r in lines if r.get("split") == "val"] == [2]
     # The bundle loads like any other, and says where it came from.
     model, mc, cand = load_model(str(whole.bundle))
     assert mc.output_hw == TINY.output_hw and len(cand) == 8
     prov = read_provenance(whole.bundle)
     assert prov["adapted"] is True and prov["adapted_from"] == str(setup["bundle"])
     assert prov["adapted_from_provenance"] == {"note": "tiny"}
-    assert prov["frames"] == setup["frames"] and prov["objective"]["smoothness"] == 0.01
-    assert prov["labels_used_for_loss"] is False
-
-
-def test_dataset_labels_do_not_change_the_adaptation(setup, capsys):
-    """The same frames as a dataset whose labels are wrong and a second copy with other labels:
-    the adaptation is identical (the labels are never given to the objective); with the
-    dataset as --val its labels give a score, logged as such. Also the command line."""
-    from gijax.cli import main
-    from gijax.data import write_dataset
-    from gijax.data.reader import DatasetReader
-
-    root = setup["root"]
-    reader = DatasetReader(setup["data"])
-    write_dataset(root / "data2", lambda i: dict(reader[i], pano_distance=np.full(
-        TINY.output_hw, 0.6, np.float32)), reader.rig, PANO, num_samples=2)
-    args = ["adapt", "--ckpt", str(setup["bundle"]), "--steps", "2", "--batch", "1",
-            "--lr", "1e-3", "--no-progress"]
-    assert main([*args, "--frames", setup["data"], "--out", str(root / "a")]) == 0
-    assert main([*args, "--frames", str(root / "data2"), "--out", str(root / "b"),
-                 "--val", setup["data"]]) == 0
-    printed = capsys.readouterr().out
-    assert "validation (labels of" in printed and "not used for adapting" in printed
-    a, b = _weights(root / "a"), _weights(root / "b")
-    for k in a:
-        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
-    lines = [json.loads(x) for x in (root / "b.adapt" / "metrics.jsonl").read_text().splitlines()]
-    assert [r["step"] for r in lines if r.get("split") == "val"] == [0, 2]
-    # Bad input: one line each.
-    assert main([*args, "--frames", str(root / "nowhere"), "--out", str(root / "c")]) == 1
-    assert "--frames" in capsys.readouterr().err
-    assert main([*args, "--frames", setup["frames"][0], "--out", str(root / "c")]) == 1
-    assert "give --rig" in capsys.readouterr().err
-    assert main([*args, "--frames", setup["data"], "--out", str(root / "c"),
-                 "--photometric", "0", "--smoothness", "0"]) == 1
-    assert "every weight is 0" in capsys.readouterr().err
+    assert prov["frames"] == [f"{setup['data']}#0", f"{setup['data']}#1"]
+    assert prov["objective"]["smoothness"] == 0.01 and prov["labels_used_for_loss"] is False
+    # Bad input: one line each, before any work.
+    fails = [(["--frames", str(root / "nowhere")], "--frames"),
+             (["--frames", setup["frames"][0]], "give --rig"),
+             (["--frames", setup["data"], "--photometric", "0", "--smoothness", "0"],
+              "every weight is 0"),
+             (["--frames", setup["data"], "--batch", "3"], "larger than the 2 frame(s)")]
+    for extra, words in fails:
+        assert main([*args[:-5], "--no-progress", *extra, "--out", str(root / "c")]) == 1
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1, err

@@ -97,14 +97,12 @@ def frame_arrays(frames: Sequence, rig, mc, calibrated: bool = True,
     size), the training arrays (``surrogates``, ``masks``, and ``distance`` NaN / ``valid``
     False: no labels), the frames' labels and their images and masks at the model's size
     (uint8 / float32, for the teacher)."""
-    import jax
     import jax.numpy as jnp
 
     from gijax.calibrate.frames import read_frames
     from gijax.data.images import fit_images
     from gijax.geometry.panorama import Panorama
     from gijax.model import model_panorama
-    from gijax.sweep.surrogate import surrogate_images
 
     images, masks, labels = read_frames(frames, rig, max_frames)
     for i, m in enumerate(rig.masks):       # the rig body stays out, whatever the frame says
@@ -119,8 +117,8 @@ def frame_arrays(frames: Sequence, rig, mc, calibrated: bool = True,
     small = np.stack([f[1] for f in fitted])
     small_masks = np.stack([np.asarray(f[2], np.float32) for f in fitted])
     spano = Panorama.hemisphere(*mc.surrogate_hw)
-    make = jax.jit(lambda r, im, m: surrogate_images(r, im, m, spano))
-    sur, smask = zip(*[make(run_rig, jnp.asarray(im, jnp.float32) / 255.0, jnp.asarray(m))
+    make = _jitted_surrogates()
+    sur, smask = zip(*[make(run_rig, jnp.asarray(im, jnp.float32) / 255.0, jnp.asarray(m), spano)
                        for im, m in zip(small, small_masks)])
     hw = model_panorama(mc).shape
     arrays = {"surrogates": np.stack([np.asarray(s, np.float32) for s in sur]),
@@ -129,6 +127,20 @@ def frame_arrays(frames: Sequence, rig, mc, calibrated: bool = True,
               "distance": np.full((len(labels), *hw), np.nan, np.float32),
               "valid": np.zeros((len(labels), *hw), bool)}
     return run_rig, arrays, labels, small, small_masks
+
+
+_SURROGATES: list = []
+
+
+def _jitted_surrogates():
+    """One compiled :func:`gijax.sweep.surrogate.surrogate_images` per process (per shape)."""
+    if not _SURROGATES:
+        import jax
+
+        from gijax.sweep.surrogate import surrogate_images
+
+        _SURROGATES.append(jax.jit(surrogate_images, static_argnames=("pano",)))
+    return _SURROGATES[0]
 
 
 def teacher_maps(run_rig, images, masks, arrays: dict, mc, preset: str,
