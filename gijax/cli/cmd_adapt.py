@@ -13,8 +13,9 @@ bundle (--out) that every --ckpt accepts.
 
 Objective, each term with its weight (0 leaves it out):
   --photometric  each predicted panorama point is projected into every camera and the
-                 cameras' colours there are compared (masks respected): the right distance
-                 makes them agree;
+                 cameras' colours there are compared (masks respected; each camera's colours
+                 first scaled to the cameras' common mean): the right distance makes them
+                 agree;
   --smoothness   edge-aware smoothness of the predicted inverse distance (divided by its
                  mean): differences between neighbouring pixels cost exp(-EDGE |colour
                  difference|) of the reference panorama (the cameras' mean colour at the
@@ -42,7 +43,7 @@ it on the same rig ('gijax predict --ckpt OUT --rig RIG --panorama hemisphere ..
 
 
 def register(subparsers) -> None:
-    from gijax.cli.options import CKPT_HELP, RawHelpFormatter, add_rig_option, add_rtss_preset_option
+    from gijax.cli.options import CKPT_HELP, RawHelpFormatter, add_rig_option
 
     p = subparsers.add_parser("adapt", help=HELP, formatter_class=RawHelpFormatter,
                               description=DESCRIPTION)
@@ -61,11 +62,19 @@ def register(subparsers) -> None:
     p.add_argument("--edge", type=float, default=10.0, metavar="EDGE",
                    help="how fast a colour edge frees the smoothness: exp(-EDGE |dI|), colours "
                         "in [0, 1]")
+    p.add_argument("--no-gain-normalisation", action="store_true",
+                   help="compare the cameras' colours as they are; by default each camera's "
+                        "colours are first scaled to the cameras' common mean (cameras differ "
+                        "in exposure and white balance, which would hide the distance)")
     p.add_argument("--teacher", type=float, default=0.0,
                    help="weight of the classical baseline as a teacher where it is trusted "
                         "(0: no teacher; it is then not run)")
-    add_rtss_preset_option(p)
-    p.set_defaults(rtss_preset="RS-E32")
+    from gijax.baseline.rtss import RTSS_PRESETS
+
+    p.add_argument("--teacher-preset", default="RS-E32", choices=sorted(RTSS_PRESETS),
+                   metavar="NAME",
+                   help=f"the classical baseline that teaches with --teacher "
+                        f"({', '.join(RTSS_PRESETS)})")
     p.add_argument("--teacher-max-dispersion", type=float, default=0.05, metavar="D",
                    help="trust the teacher where the cameras' colour dispersion at its "
                         "distance is at most D (the photometric term's units)")
@@ -100,14 +109,15 @@ def run(args) -> int:
         raise ValueError(f"--teacher-max-dispersion must be > 0; found "
                          f"{args.teacher_max_dispersion}")
     objective = LabelFree(photometric=args.photometric, smoothness=args.smoothness,
-                          teacher=args.teacher, edge_scale=args.edge)
+                          teacher=args.teacher, edge_scale=args.edge,
+                          normalize_gain=not args.no_gain_normalisation)
     args.interrupted_keeps = (f"{work_folder(args.out)} keeps the checkpoints written so far; "
                               f"the same command resumes from the last")
     result = adapt_network(
         args.ckpt, args.frames, args.out, rig=args.rig, objective=objective, steps=args.steps,
         lr=args.lr, batch_size=args.batch, seed=args.seed, batch_norm=args.batch_norm,
         ckpt_every=args.ckpt_every, max_frames=args.max_frames,
-        teacher_preset=args.rtss_preset, teacher_max_dispersion=args.teacher_max_dispersion,
+        teacher_preset=args.teacher_preset, teacher_max_dispersion=args.teacher_max_dispersion,
         val=args.val, val_every=args.val_every, progress=not args.no_progress,
         invocation=invocation(shlex.join(["gijax", *args.argv])))
     losses = [r for r in result.history if "loss" in r]
