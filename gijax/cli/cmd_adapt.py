@@ -75,7 +75,7 @@ def register(subparsers) -> None:
                    metavar="NAME",
                    help=f"the classical baseline that teaches with --teacher "
                         f"({', '.join(RTSS_PRESETS)})")
-    p.add_argument("--teacher-max-dispersion", type=float, default=0.05, metavar="D",
+    p.add_argument("--teacher-max-dispersion", type=float, default=0.02, metavar="D",
                    help="trust the teacher where the cameras' colour dispersion at its "
                         "distance is at most D (the photometric term's units)")
     p.add_argument("--steps", type=int, default=200, help="Adam steps in total")

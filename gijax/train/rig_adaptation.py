@@ -202,7 +202,7 @@ def adapt_network(ckpt, frames: Sequence, out, *, rig: str | None = None,
                   objective: LabelFree = LabelFree(), steps: int = 200, lr: float = 2e-5,
                   batch_size: int = 1, seed: int = 0, batch_norm: str = "frozen",
                   ckpt_every: int = 25, keep: int = 2, max_frames: Optional[int] = None,
-                  teacher_preset: str = "RS-E32", teacher_max_dispersion: float = 0.05,
+                  teacher_preset: str = "RS-E32", teacher_max_dispersion: float = 0.02,
                   val: str | os.PathLike | None = None, val_every: int = 0,
                   progress: bool = True, invocation: Optional[dict] = None,
                   stop_at: Optional[int] = None, log=print) -> AdaptationResult:
