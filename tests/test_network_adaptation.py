@@ -2,7 +2,6 @@
 independent references, the objective never reading labels, and a short adaptation run that
 resumes exactly and writes a bundle every ``--ckpt`` loads."""
 
-import dataclasses
 import json
 
 import cv2
