@@ -11,10 +11,11 @@ ends), on batches of that rig's data, by one of two losses:
   was trained with: the error the tables report is the regressed inverse distance;
 * ``'photometric'``: no labels (so it also serves real captures): each predicted panorama point
   is projected into every camera's surrogate image and the cameras' colours there are compared
-  (:func:`photometric_loss`, masks respected). The right distance makes them agree.
+  (:func:`gijax.train.unlabeled.photometric_loss`, masks respected). The right distance
+  makes them agree.
 
-The model stays in eval mode (BatchNorm running statistics) and is never changed. Pure pieces
-(:func:`photometric_loss`, :func:`adaptation_loss`) are traceable; :func:`adapt_candidates` is
+The model stays in eval mode (BatchNorm running statistics) and is never changed. The pure
+piece (:func:`adaptation_loss`) is traceable; :func:`adapt_candidates` is
 the loop at the edge: progress bar, atomic checkpoints, resume.
 """
 
@@ -34,56 +35,16 @@ import optax
 from flax import nnx
 
 from gijax.candidates.parametrisation import candidates_from_logits, logits_from_candidates
-from gijax.geometry.panorama import Panorama, direction_to_pixel
-from gijax.geometry.panorama_frame import panorama_rays
+from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig
 from gijax.model import OmniStereoNet, model_grids, model_panorama
-from gijax.sampling import bilinear_sample
-from gijax.sweep.consistency import view_dispersion
 from gijax.train.losses import smooth_l1_loss
 from gijax.train.step import split_model
+from gijax.train.unlabeled import photometric_loss
 
 Array = jax.Array
 
 LOSSES = ("supervised", "photometric")
-
-
-def photometric_loss(surrogates: Array, masks: Array, rig: Rig, inv_distance: Array,
-                     pano: Panorama, surrogate_pano: Panorama) -> Array:
-    """Colour disagreement between the cameras at the predicted panorama points (scalar).
-
-    Args:
-      surrogates: (B, N, Hs, Ws, 3) surrogate images in [0, 1] (each camera's hemisphere).
-      masks: (B, N, Hs, Ws) their masks (1 = sees the world).
-      rig: the rig (at the model's size; the panorama follows its panorama frame).
-      inv_distance: (B, H, W) predicted inverse distance, 1/m, on ``pano``.
-      pano, surrogate_pano: the output panorama and the surrogate images' hemisphere.
-
-    Each pixel's point ``reference + ray / inv_distance`` is sampled (bilinearly) in every
-    camera whose hemisphere holds it, weighted by the sampled mask; the loss is the weighted
-    mean Charbonnier distance of those colours to their weighted mean
-    (:func:`gijax.sweep.consistency.view_dispersion`), averaged over pixels seen by at least
-    two cameras' worth of weight (0 when there is none).
-    """
-    dtype = surrogates.dtype
-    rays = panorama_rays(rig, pano, dtype)                               # (H, W, 3)
-    dist = 1.0 / jnp.maximum(inv_distance.astype(dtype), 1e-6)
-    pts = rig.reference.astype(dtype) + dist[..., None] * rays            # (B, H, W, 3)
-
-    def one_camera(img, mask, rot, trans):
-        # img (B, Hs, Ws, 3), mask (B, Hs, Ws): every sample's view from this camera.
-        pc = (pts - trans.astype(dtype)) @ rot.astype(dtype)
-        px, in_front = direction_to_pixel(surrogate_pano, pc)
-        packed = jnp.concatenate([img, mask[..., None].astype(dtype)], -1)
-        vals, ok = jax.vmap(bilinear_sample)(packed, px, in_front)
-        weight = vals[..., 3] * ok.astype(dtype)
-        return vals[..., :3], weight
-
-    cols, wts = jax.vmap(one_camera, in_axes=(1, 1, 0, 0))(
-        surrogates, masks, rig.rotations, rig.translations)                # (N, B, H, W, .)
-    per_pixel, total = view_dispersion(cols, wts)             # (B, H, W)
-    seen = (total >= 1.5).astype(dtype)
-    return jnp.sum(per_pixel * seen) / jnp.maximum(jnp.sum(seen), 1.0)
 
 
 def adaptation_loss(kind: str, model: OmniStereoNet, logits: Array, batch: dict, rig: Rig,

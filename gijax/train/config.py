@@ -20,6 +20,7 @@ from gijax.nn.presets import ModelConfig, get_preset
 from gijax.store.configs import CONFIG_FILE, read_run_config, run_config_document
 
 SCHEDULES = ("constant", "cosine", "warmup_cosine", "step")
+BATCH_NORM = ("train", "frozen")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,6 +69,14 @@ class TrainConfig:
         checkpoint with the training state, the data stream's position and the log, small
         enough to commit. A run whose folder holds no newer checkpoint resumes from it (on
         another machine, after the run folder was lost); ``init_from`` is then not read.
+      label_free: train without labels: a dict of :class:`gijax.train.unlabeled.LabelFree`
+        weights (``photometric``, ``smoothness``, ``teacher``, ``edge_scale``); the step then
+        optimises that objective instead of the preset's label loss and never reads the
+        batches' labels (validation, when given, still scores against its own labels). None:
+        the label loss. Used by ``gijax adapt`` (:mod:`gijax.train.rig_adaptation`).
+      batch_norm: 'train' (BatchNorm normalises by each batch's statistics and updates its
+        running averages) or 'frozen' (the running statistics it starts with are used and
+        kept, as at inference: for fine-tuning on a few frames in small batches).
     """
 
     preset: str = "G16VV-cpu"
@@ -101,6 +110,8 @@ class TrainConfig:
     calibration_error_deg: float = 0.0
     init_from: Optional[str] = None
     pack: Optional[str] = None
+    label_free: Optional[dict] = None
+    batch_norm: str = "train"
 
     def __post_init__(self) -> None:
         def fail(field, expected, found):
@@ -126,6 +137,10 @@ class TrainConfig:
             fail("clip_norm", "a positive number or null", self.clip_norm)
         if self.best_mode not in ("min", "max"):
             fail("best_mode", "'min' or 'max'", self.best_mode)
+        if self.batch_norm not in BATCH_NORM:
+            fail("batch_norm", f"one of {BATCH_NORM}", self.batch_norm)
+        if self.label_free is not None:
+            self.objective()                      # bad weights fail here
         self.model_config()                       # unknown preset / bad override fails here
 
     def model_config(self) -> ModelConfig:
@@ -136,6 +151,18 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.model_overrides: unknown ModelConfig fields {sorted(unknown)}")
         over = {k: tuple(v) if isinstance(v, list) else v for k, v in self.model_overrides.items()}
         return dataclasses.replace(base, **over)
+
+    def objective(self):
+        """The :class:`gijax.train.unlabeled.LabelFree` objective of ``label_free`` (None
+        when the run trains on labels)."""
+        if self.label_free is None:
+            return None
+        from gijax.train.unlabeled import LabelFree
+
+        if not isinstance(self.label_free, dict):
+            raise ValueError(f"TrainConfig field 'label_free': expected a dict of weights or "
+                             f"null, found {self.label_free!r}")
+        return LabelFree.from_dict(self.label_free)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -95,7 +95,9 @@ class Logbook:
         rate = samples / elapsed
         waited, self._waited = self._waited, 0.0
         self._t_last = now
-        self.log({"step": step, "loss": loss, "grad_norm": float(out["grad_norm"]),
+        # A label-free objective's terms (``loss_photometric``, ...) beside their sum.
+        terms = {k: float(v) for k, v in out.items() if k.startswith("loss_")}
+        self.log({"step": step, "loss": loss, **terms, "grad_norm": float(out["grad_norm"]),
                   "lr": lr, "samples_per_s": rate,
                   "data_wait_fraction": min(waited / elapsed, 1.0)})
         if self._bar is not None:

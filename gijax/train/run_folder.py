@@ -76,7 +76,7 @@ def run_candidates(config: TrainConfig, run_dir, rig: Optional[Rig]) -> np.ndarr
 def check_resumable(run_dir: Path, config: TrainConfig, mc: ModelConfig) -> None:
     """ValueError when the run recorded in ``run_dir/config.json`` cannot be continued with
     ``config`` (network ``mc``): another preset, candidate count, network, candidate learning
-    setting or candidate list."""
+    setting, objective (labels or label-free weights), BatchNorm mode or candidate list."""
     old_cfg, old_mc, old_cand = load_run_config(run_dir)
     if old_cfg.preset != config.preset:
         raise ValueError(f"run folder {run_dir} was trained with preset "
@@ -94,6 +94,12 @@ def check_resumable(run_dir: Path, config: TrainConfig, mc: ModelConfig) -> None
         say = "learned" if old_cfg.learn_candidates else "fixed"
         raise ValueError(f"run folder {run_dir} was trained with a {say} candidate "
                          f"list; resume it with the same --learn-candidates setting")
+    if old_cfg.label_free != config.label_free or old_cfg.batch_norm != config.batch_norm:
+        raise ValueError(f"run folder {run_dir} was trained with objective "
+                         f"{old_cfg.label_free or 'labels'} and batch_norm "
+                         f"{old_cfg.batch_norm!r}; this configuration asks for "
+                         f"{config.label_free or 'labels'} and {config.batch_norm!r} (use a new "
+                         f"--out)")
     cand = np.asarray(old_cand, np.float64)
     if config.candidates is not None and not np.allclose(config.candidates, cand):
         raise ValueError(f"run folder {run_dir} was trained with candidates "

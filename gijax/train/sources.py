@@ -16,11 +16,12 @@ import jax
 import numpy as np
 
 from gijax.data.loader import epoch_order, shard_order
-from gijax.train.step import BATCH_KEYS
+from gijax.train.step import BATCH_KEYS, EXTRA_KEYS
 
 
 class ArrayLoader:
-    """Endless, resumable batches from in-memory arrays (each ``(num_samples, ...)``).
+    """Endless, resumable batches from in-memory arrays (each ``(num_samples, ...)``): the
+    :data:`~gijax.train.step.BATCH_KEYS` and any of :data:`~gijax.train.step.EXTRA_KEYS`.
 
     ``batch_size`` is per process; ``state()`` gives the epoch and batch position of the next
     batch, and ``ArrayLoader(..., state=s)`` continues from there.
@@ -31,8 +32,13 @@ class ArrayLoader:
         missing = [k for k in BATCH_KEYS if k not in arrays]
         if missing:
             raise ValueError(f"in-memory training data lacks arrays {missing}; expected {BATCH_KEYS}")
-        self.arrays = {k: np.asarray(arrays[k]) for k in BATCH_KEYS}
+        self.arrays = {k: np.asarray(arrays[k]) for k in BATCH_KEYS + EXTRA_KEYS
+                       if k in arrays}
         self.num_samples = len(self.arrays["distance"])
+        uneven = [k for k, v in self.arrays.items() if len(v) != self.num_samples]
+        if uneven:
+            raise ValueError(f"in-memory training data: arrays {uneven} do not hold "
+                             f"{self.num_samples} samples like 'distance'")
         if self.num_samples == 0:
             raise ValueError("in-memory training data has no samples")
         self.batch_size, self.seed, self.shuffle = int(batch_size), int(seed), bool(shuffle)

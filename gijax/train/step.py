@@ -30,13 +30,16 @@ from flax import nnx
 from jax.sharding import Mesh, NamedSharding, PartitionSpec as P
 
 from gijax.candidates.parametrisation import candidates_from_logits
-from gijax.model import model_grids
+from gijax.model import model_grids, model_panorama
 from gijax.train.config import TrainConfig
 from gijax.train.losses import model_loss
+from gijax.train.unlabeled import TEACHER_KEYS, LabelFree, label_free_terms
 
 Array = jax.Array
 DATA_AXIS = "data"
 BATCH_KEYS = ("surrogates", "masks", "distance", "valid")
+# Arrays a batch may carry besides BATCH_KEYS, placed and split like them when present.
+EXTRA_KEYS = TEACHER_KEYS
 
 
 def learning_rate_schedule(cfg: TrainConfig) -> optax.Schedule:
@@ -102,8 +105,13 @@ def _cast_floats(tree, dtype):
 def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
                      grad_accum: int = 1, bf16: bool = False,
                      tx_cand: optax.GradientTransformation | None = None,
-                     d_range=None) -> Callable:
+                     d_range=None, label_free: LabelFree | None = None) -> Callable:
     """``step(state, batch, rig, candidates) -> (state, {'loss', 'grad_norm'})`` (not jitted).
+
+    With ``label_free`` the loss is that objective
+    (:func:`gijax.train.unlabeled.label_free_terms`) on the refined inverse distance instead of
+    ``loss_kind``'s label loss: the batch's ``distance`` and ``valid`` are then not read, and
+    the info also holds each weighted term's value as ``loss_<term>``.
 
     With ``tx_cand`` the candidate list is learned: ``candidates`` is ignored, the list comes
     from ``state['cand_logits']`` (ends ``d_range``), and its logits are updated by ``tx_cand``
@@ -135,10 +143,17 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
         out = model(surrogates, batch["masks"], grids)
         out = {k: v.astype(jnp.float32) if jnp.issubdtype(v.dtype, jnp.floating) else v
                for k, v in out.items()}
-        loss = model_loss(loss_kind, out, batch["distance"], batch["valid"],
-                          jax.lax.stop_gradient(candidates))
+        if label_free is None:
+            loss = model_loss(loss_kind, out, batch["distance"], batch["valid"],
+                              jax.lax.stop_gradient(candidates))
+            terms = {}
+        else:
+            terms = label_free_terms(label_free, out["inv_distance"], batch, rig,
+                                     model_panorama(model.config))
+            loss = terms.pop("loss")
         _, _, new_rest = nnx.split(model, nnx.Param, ...)
-        return loss, jax.tree.map(lambda new, old: new.astype(old.dtype), new_rest, rest)
+        return loss, (jax.tree.map(lambda new, old: new.astype(old.dtype), new_rest, rest),
+                      terms)
 
     grad_fn = jax.value_and_grad(forward, has_aux=True)
 
@@ -146,25 +161,26 @@ def build_train_step(graphdef, tx: optax.GradientTransformation, loss_kind: str,
         params, rest = state["params"], state["rest"]
         trainable = (params, state["cand_logits"]) if learn else params
         if grad_accum == 1:
-            (loss, rest), grads = grad_fn(trainable, rest, batch, rig, candidates)
+            (loss, (rest, terms)), grads = grad_fn(trainable, rest, batch, rig, candidates)
         else:
             def micro(x):
                 m = x.shape[0] // grad_accum
                 return x.reshape(m, grad_accum, *x.shape[1:]).swapaxes(0, 1)
 
-            micro_batches = {k: micro(batch[k]) for k in BATCH_KEYS}
+            micro_batches = {k: micro(v) for k, v in batch.items()}
 
             def body(carry, mb):
                 rest_c, g_sum, l_sum = carry
-                (l, rest_c), g = grad_fn(trainable, rest_c, mb, rig, candidates)
-                return (rest_c, jax.tree.map(jnp.add, g_sum, g), l_sum + l), None
+                (l, (rest_c, t)), g = grad_fn(trainable, rest_c, mb, rig, candidates)
+                return (rest_c, jax.tree.map(jnp.add, g_sum, g), l_sum + l), t
 
             zeros = jax.tree.map(jnp.zeros_like, trainable)
-            (rest, g_sum, l_sum), _ = jax.lax.scan(body, (rest, zeros, jnp.zeros(())),
-                                                   micro_batches)
+            (rest, g_sum, l_sum), per_micro = jax.lax.scan(
+                body, (rest, zeros, jnp.zeros(())), micro_batches)
             grads = jax.tree.map(lambda g: g / grad_accum, g_sum)
             loss = l_sum / grad_accum
-        info = {"loss": loss}
+            terms = {k: jnp.mean(v) for k, v in per_micro.items()}
+        info = {"loss": loss, **{f"loss_{k}": v for k, v in terms.items()}}
         new_state = dict(state)
         if learn:
             grads, g_cand = grads
@@ -229,7 +245,7 @@ def place_batch(local_batch: dict, mesh: Mesh) -> dict:
     """This process's share of a batch (numpy) -> global arrays sharded over 'data'."""
     shard = batch_sharded(mesh)
     out = {}
-    for k in BATCH_KEYS:
+    for k in BATCH_KEYS + tuple(k for k in EXTRA_KEYS if k in local_batch):
         x = np.asarray(local_batch[k])
         if k == "valid":
             x = x.astype(bool)

@@ -138,9 +138,13 @@ class Trainer:
                                          config.best_metric if config.keep_best else None,
                                          config.best_mode)
             self._restore(state, params, rest, logits0)
+            # Frozen BatchNorm: the step runs the network as at inference (running statistics
+            # used, not updated); the state keeps the same variables either way.
+            step_def = self.eval_def if config.batch_norm == "frozen" else self.train_def
             self._step = S.jit_train_step(
-                S.build_train_step(self.train_def, self.tx, self.mc.loss, config.grad_accum,
-                                   config.bf16, self.tx_cand, self.d_range), self.mesh)
+                S.build_train_step(step_def, self.tx, self.mc.loss, config.grad_accum,
+                                   config.bf16, self.tx_cand, self.d_range,
+                                   config.objective()), self.mesh)
             self._eval = jax.jit(S.build_eval_forward(self.eval_def))
             self._cand = jnp.asarray(self.candidates, jnp.float32)
             if config.learn_candidates:
