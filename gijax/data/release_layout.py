@@ -61,6 +61,7 @@ from gijax.geometry import cameras as cam_lib
 from gijax.geometry.occluder import FAR
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import make_rig
+from gijax.io.parsing import Where, checked_camera, floats, resolution
 
 MANIFEST = "manifest.json"
 METADATA = "metadata.json"
@@ -77,6 +78,8 @@ RIG_LABEL_FRAME = "rifs"    # map_camera_frame["rig"] of the release's configura
 LABEL_PANO = Panorama.hemisphere(160, 640)
 BLEND_THRESHOLD_SCALE = 0.01  # BlendBy2ndOrderGradTorch threshold_scaling_factor in the release
 BLEND_THRESHOLD_MAX = 10.0
+# Tolerance on |R^T R - I| of a frame graph's rotation_matrix.
+RELEASE_ROTATION_TOL = 1e-3
 # Rotation taking release-panorama (rifs) coordinates to gijax panorama coordinates.
 R_G_FROM_E = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
@@ -125,21 +128,26 @@ def open_reader(root, split: str = "train", allow_partial: bool = False, **kw):
 # ---------------------------------------------------------------------------- frame graph
 
 def _orientation(doc, where) -> np.ndarray:
+    """A rotation matrix. The release uses a matrix as it is; one that is far from a rotation
+    (beyond :data:`RELEASE_ROTATION_TOL`, looser than a calibration file's since these files
+    print few digits) is refused, since every pose chained through it would be skewed."""
     kind = fmt.require(doc, "type", where, str)
     data = fmt.require(doc, "data", where, (list, dict))
     if kind == "rotation_matrix":
-        m = np.asarray(data, np.float64)
-        if m.size != 9:
-            raise ValueError(f"{where}: rotation_matrix data must hold 9 numbers (row-major "
-                             f"3x3); found {m.size}")
-        return m.reshape(3, 3)
+        m = floats(data, 9, "data", Where(where), "9 numbers (row-major 3x3)").reshape(3, 3)
+        err = float(np.abs(m.T @ m - np.eye(3)).max())
+        if err > RELEASE_ROTATION_TOL or np.linalg.det(m) <= 0:
+            raise ValueError(f"{where}: rotation_matrix data must be a proper rotation "
+                             f"(|R^T R - I| = {err:.3g}, det = {np.linalg.det(m):.3g}); found "
+                             f"{m.tolist()}")
+        return m
     if kind == "quaternion":
         if not isinstance(data, dict):
             raise ValueError(f"{where}: quaternion data must be an object with x, y, z, w")
-        q = np.array([fmt.require(data, k, where, (int, float)) for k in "wxyz"], np.float64)
+        q = np.array([_num(data, k, where) for k in "wxyz"], np.float64)
         n = np.linalg.norm(q)
-        if n == 0:
-            raise ValueError(f"{where}: quaternion has zero norm")
+        if not n > 1e-12 or not math.isfinite(n):
+            raise ValueError(f"{where}: quaternion has norm {n:.3g}; expected a rotation")
         w, x, y, z = q / n  # the release's pyquaternion normalises before building the matrix
         return np.array([
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -150,9 +158,8 @@ def _orientation(doc, where) -> np.ndarray:
 
 
 def _pose(doc, where) -> np.ndarray:
-    t = np.asarray(fmt.require(doc, "position", where, list), np.float64)
-    if t.shape != (3,):
-        raise ValueError(f"{where}: position must hold 3 numbers; found {t.size}")
+    t = floats(fmt.require(doc, "position", where, list), 3, "position", Where(where),
+               "3 numbers in metres")
     T = np.eye(4)
     T[:3, :3] = _orientation(fmt.require(doc, "orientation", where, dict), f"{where} orientation")
     T[:3, 3] = t
@@ -223,14 +230,25 @@ class FrameGraph:
 # ---------------------------------------------------------------------------- camera models
 
 def _shape(spec, where) -> tuple[int, int]:
+    """shape_struct (H, W): positive and within the image-size bounds."""
     ss = fmt.require(spec, "shape_struct", where, dict)
     h = fmt.require(ss, "H", f"{where} shape_struct", int)
     w = fmt.require(ss, "W", f"{where} shape_struct", int)
-    return h, w
+    resolution([w, h], Where(f"{where} shape_struct"))
+    return int(h), int(w)
 
 
 def _num(spec, key, where) -> float:
-    return float(fmt.require(spec, key, where, (int, float)))
+    """A finite number (JSON's NaN and Infinity are refused)."""
+    value = fmt.require(spec, key, where, (int, float))
+    return float(floats(value, 1, key, Where(where), "one finite number")[0])
+
+
+def _fov(spec, where) -> float:
+    fov = _num(spec, "fov_degree", where)
+    if not 0.0 < fov <= 360.0:
+        raise ValueError(f"{where}: field 'fov_degree' must lie in (0, 360] degrees; found {fov}")
+    return fov
 
 
 class ReleaseCameraModel:
@@ -248,22 +266,34 @@ class ReleaseCameraModel:
         self.height, self.width = _shape(spec, where)
         self.padding = "zeros"
         if self.type == "DoubleSphere":
-            for k in ("fx", "fy", "cx", "cy", "xi", "alpha", "fov_degree"):
+            for k in ("fx", "fy", "cx", "cy", "xi", "alpha"):
                 setattr(self, k, _num(spec, k, where))
+            self.fov_degree = _fov(spec, where)
             a, xi = self.alpha, self.xi
+            if not 0.0 <= a <= 1.0 or self.fx <= 0 or self.fy <= 0:
+                raise ValueError(f"{where}: DoubleSphere needs alpha in [0, 1] and positive fx, "
+                                 f"fy; found alpha={a}, fx={self.fx}, fy={self.fy}")
             w1 = a / (1 - a) if a <= 0.5 else (1 - a) / a
-            self.w2 = (w1 + xi) / math.sqrt(2 * w1 * xi + xi * xi + 1)
+            radicand = 2 * w1 * xi + xi * xi + 1
+            if not radicand > 0:
+                raise ValueError(f"{where}: DoubleSphere xi={xi} with alpha={a} has no valid "
+                                 f"projection region")
+            self.w2 = (w1 + xi) / math.sqrt(radicand)
         elif self.type == "LinearSphere":
-            self.fov_degree = _num(spec, "fov_degree", where)
+            self.fov_degree = _fov(spec, where)
             if self.height != self.width:
                 raise ValueError(f"{where}: a LinearSphere image must be square; found "
                                  f"shape_struct H={self.height}, W={self.width}")
         elif self.type == "Equirectangular":
             self.padding = "border"
-            lon = spec.get("longitude_span", [-math.pi, math.pi])
-            lat = spec.get("latitude_span", [-math.pi / 2, math.pi / 2])
-            if len(lon) != 2 or len(lat) != 2:
-                raise ValueError(f"{where}: longitude_span and latitude_span need 2 numbers")
+            at = Where(where)
+            lon = floats(spec.get("longitude_span", [-math.pi, math.pi]), 2, "longitude_span",
+                         at, "2 numbers (radians)")
+            lat = floats(spec.get("latitude_span", [-math.pi / 2, math.pi / 2]), 2,
+                         "latitude_span", at, "2 numbers (radians)")
+            if not (lon[1] > lon[0] and lat[1] > lat[0]):
+                raise ValueError(f"{where}: longitude_span and latitude_span must be increasing; "
+                                 f"found {lon.tolist()}, {lat.tolist()}")
             self.lon0, self.lat0, self.lat1 = float(lon[0]), float(lat[0]), float(lat[1])
             self.lon_span = float(lon[1]) - float(lon[0])
             if spec.get("open_span", False):
@@ -315,16 +345,16 @@ def gijax_camera(spec: dict, where: str):
         p = {k: _num(spec, k, where) for k in ("fx", "fy", "cx", "cy", "xi", "alpha")}
         p["cx"] -= 0.5
         p["cy"] -= 0.5
-        return cam_lib.make_camera("ds", p, w, h, _num(spec, "fov_degree", where))
+        return checked_camera("ds", p, (w, h), _fov(spec, where), Where(where))
     if kind == "LinearSphere":
         if h != w:
             raise ValueError(f"{where}: a LinearSphere image must be square; found "
                              f"shape_struct H={h}, W={w}")
-        fov_deg = _num(spec, "fov_degree", where)
+        fov_deg = _fov(spec, where)
         f = w / math.radians(fov_deg)
         c = w / 2 - 0.5
-        return cam_lib.make_camera("equidistant", {"fx": f, "fy": f, "cx": c, "cy": c}, w, h,
-                                   fov_deg)
+        return checked_camera("equidistant", {"fx": f, "fy": f, "cx": c, "cy": c}, (w, h),
+                              fov_deg, Where(where))
     raise ValueError(f"{where}: camera model type {kind!r} has no gijax equivalent for an input "
                      f"camera; supported: {', '.join(SUPPORTED_MODELS)} (gijax models: "
                      f"{', '.join(sorted(cam_lib.CAMERA_MODELS))})")
