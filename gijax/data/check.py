@@ -55,7 +55,9 @@ class DatasetCheck:
 
 
 def _check_file(path: Path, column: str, shapes: dict, where: str) -> None:
-    name, kind = column.rsplit("_", 1)
+    name, kind = column.rsplit("_", 1) if "_" in column else (column, "")
+    if name not in shapes:
+        raise ValueError(f"unknown column {column!r} ({where}): the rig has no camera {name!r}")
     hw = shapes[name]
     if kind == "rgb":
         pngio.read_rgb(path, hw, where)

@@ -39,6 +39,7 @@ from gijax.geometry.occluder import FAR, Cylinder
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig
 from gijax.io.masks import read_mask
+from gijax.io.text import read_text
 
 FORMAT_NAME = "gijax-multi-fisheye"
 FORMAT_VERSION = 2
@@ -64,7 +65,7 @@ def inside(root: Path, base: Path, name: str, where: str) -> Path:
     """``base / name`` when it names a file inside the dataset folder ``root``; ValueError
     naming ``where`` otherwise (an absolute path, or ``..`` leading out of the folder): a
     dataset's documents may only point at its own files."""
-    if not isinstance(name, str) or not name:
+    if not isinstance(name, str) or not name or "\0" in name:
         raise ValueError(f"{where}: expected a file name inside the dataset, found {name!r}")
     if os.path.isabs(name):
         raise ValueError(f"{where}: {name!r} is an absolute path; a dataset names its files "
@@ -81,7 +82,7 @@ def load_json(path: str | os.PathLike, what: str) -> dict:
     """Read a JSON object; FileNotFoundError / ValueError name the file and the position."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, what)
     except FileNotFoundError:
         raise FileNotFoundError(f"missing {what} {path}") from None
     try:
@@ -96,7 +97,11 @@ def load_json(path: str | os.PathLike, what: str) -> dict:
 
 
 def require(doc: dict, key: str, path, kind: type | tuple = object) -> Any:
-    """``doc[key]``, raising a ValueError naming the file and the field when absent or mistyped."""
+    """``doc[key]``, raising a ValueError naming the file and the field when absent or mistyped
+    (or when ``doc`` is no JSON object)."""
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: expected an object holding field {key!r}; found "
+                         f"{type(doc).__name__}")
     if key not in doc:
         raise ValueError(f"{path}: missing field {key!r}")
     value = doc[key]
@@ -199,28 +204,78 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
         trans.append(t)
         masks.append(mask)
         names.append(name)
-    check_names(names)
+    try:
+        check_names(names)
+    except ValueError as exc:
+        raise ValueError(f"{meta_path}: {exc}") from None
     pano_pose = frames.get(PANO_FRAME, {"translation": [0.0, 0.0, 0.0]})
-    reference = np.asarray(pano_pose.get("translation", [0.0, 0.0, 0.0]), np.float32)
-    pano_rot = np.asarray(pano_pose.get("rotation", np.eye(3).tolist()), np.float64)
-    if pano_rot.shape != (3, 3) or np.abs(pano_rot.T @ pano_rot - np.eye(3)).max() > 1e-4:
-        raise ValueError(f"{root} frame {PANO_FRAME!r}: rotation must be a 3x3 rotation matrix; "
-                         f"found {pano_rot.tolist()}")
+    at = Where(graph_path, PANO_FRAME)
+    if not isinstance(pano_pose, dict):
+        raise at.error(PANO_FRAME, "a frame object with rotation and translation", pano_pose)
+    reference = floats(pano_pose.get("translation", [0.0, 0.0, 0.0]), 3, "translation", at,
+                       "3 finite numbers in metres").astype(np.float32)
+    pano_rot = check_rotation(floats(pano_pose.get("rotation", np.eye(3).tolist()), 9,
+                                     "rotation", at, "a 3x3 rotation matrix").reshape(3, 3),
+                              "rotation", at)
     occ_doc = meta.get("occluder")
     occ = None
     if occ_doc:
-        occ = Cylinder(*(jnp.asarray(require(occ_doc, f, f"{meta_path} occluder", (int, float)),
-                                     jnp.float32)
+        at = Where(meta_path)
+        occ = Cylinder(*(jnp.asarray(floats(require(occ_doc, f, f"{meta_path} occluder",
+                                                    (int, float)), 1, f"occluder.{f}", at,
+                                            "one number in metres")[0], jnp.float32)
                          for f in ("x", "y", "radius", "z_min", "z_max")))
     return Rig(tuple(cams), jnp.asarray(np.stack(rots)), jnp.asarray(np.stack(trans)),
                jnp.asarray(reference), tuple(masks), occ, tuple(names),
                jnp.asarray(pano_rot, jnp.float32))
 
 
+def _number(value, key: str, path) -> float:
+    """``value`` of field ``key`` as a float, finite in float32 (labels are float32);
+    ValueError naming the file and the field otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+            abs(value) <= np.finfo(np.float32).max):
+        raise ValueError(f"{path}: field {key!r} must be a finite number; found {value!r}")
+    return float(value)
+
+
 def pano_from_metadata(meta: dict, path) -> Panorama:
+    """The ground-truth panorama of metadata.json: a bounded positive size and latitudes
+    -90 <= lat_min < lat_max <= 90 degrees."""
+    from gijax.io.bounds import check_size
+
     doc = require(meta, "panorama", path, dict)
-    return Panorama(int(require(doc, "height", path, int)), int(require(doc, "width", path, int)),
-                    float(doc.get("lat_min_rad", -math.pi / 2)), float(doc.get("lat_max_rad", 0.0)))
+    height, width = require(doc, "height", path, int), require(doc, "width", path, int)
+    if isinstance(height, bool) or isinstance(width, bool):
+        raise ValueError(f"{path}: field 'panorama': height and width must be integers; found "
+                         f"{height!r}, {width!r}")
+    try:
+        check_size("panorama", width, height, 4)
+    except ValueError as exc:
+        raise ValueError(f"{path}: field 'panorama': {exc}") from None
+    lat_min = _number(doc.get("lat_min_rad", -math.pi / 2), "lat_min_rad", path)
+    lat_max = _number(doc.get("lat_max_rad", 0.0), "lat_max_rad", path)
+    if not -math.pi / 2 - 1e-6 <= lat_min < lat_max <= math.pi / 2 + 1e-6:
+        raise ValueError(f"{path}: field 'panorama': latitudes must satisfy -pi/2 <= "
+                         f"lat_min_rad < lat_max_rad <= pi/2; found {lat_min!r}, {lat_max!r}")
+    return Panorama(int(height), int(width), lat_min, lat_max)
+
+
+def distance_settings(meta: dict, path) -> tuple[tuple[float, float], float]:
+    """``(distance_range, sky_distance)`` of metadata.json (defaults when absent), checked:
+    0 < near < far and a positive sky distance, all finite."""
+    value = meta.get("distance_range", DEFAULT_DISTANCE_RANGE)
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ValueError(f"{path}: field 'distance_range' must be [near, far] in metres; found "
+                         f"{value!r}")
+    near, far = (_number(v, "distance_range", path) for v in value)
+    if not 0.0 < near < far:
+        raise ValueError(f"{path}: field 'distance_range' must satisfy 0 < near < far; found "
+                         f"{list(value)!r}")
+    sky = _number(meta.get("sky_distance", FAR), "sky_distance", path)
+    if sky <= 0.0:
+        raise ValueError(f"{path}: field 'sky_distance' must be positive; found {sky!r}")
+    return (near, far), sky
 
 
 # ---------------------------------------------------------------------------- file lists
@@ -249,24 +304,27 @@ def csv_records(path: Path, required) -> list[tuple[int, dict[str, str]]]:
     ``path``, whose header must hold every column in ``required``. Errors name the file and the
     line: a missing file, no header, missing columns, a row with the wrong field count."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text(path, "file list")
     except FileNotFoundError:
         raise FileNotFoundError(f"missing file list {path}") from None
     reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
-    if header is None:
-        raise ValueError(f"{path}: empty file list (no header row)")
-    missing = [c for c in required if c not in header]
-    if missing:
-        raise ValueError(f"{path} line 1: header lacks column(s) {missing}; found {header}")
-    records = []
-    for line_no, fields in enumerate(reader, start=2):
-        if not fields:
-            continue
-        if len(fields) != len(header):
-            raise ValueError(f"{path} line {line_no}: expected {len(header)} fields, found "
-                             f"{len(fields)}")
-        records.append((line_no, dict(zip(header, fields))))
+    try:
+        header = next(reader, None)
+        if header is None:
+            raise ValueError(f"{path}: empty file list (no header row)")
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise ValueError(f"{path} line 1: header lacks column(s) {missing}; found {header}")
+        records = []
+        for fields in reader:
+            if not fields:
+                continue
+            if len(fields) != len(header):
+                raise ValueError(f"{path} line {reader.line_num}: expected {len(header)} "
+                                 f"fields, found {len(fields)}")
+            records.append((reader.line_num, dict(zip(header, fields))))
+    except csv.Error as exc:       # a stray quote or carriage return inside a field
+        raise ValueError(f"{path} line {reader.line_num}: not a CSV row ({exc})") from None
     return records
 
 

@@ -20,7 +20,6 @@ import numpy as np
 
 from gijax.data import format as fmt
 from gijax.data import pngio
-from gijax.geometry.occluder import FAR
 from gijax.io.lock import describe_holder, holder_of
 from gijax.io.masks import read_mask
 
@@ -85,9 +84,8 @@ class DatasetReader(RowReader):
         self.rig = fmt.read_rig(self.root, self.manifest, self.metadata)
         self.pano = fmt.pano_from_metadata(self.metadata, self.root / fmt.METADATA)
         self.names = list(self.rig.names)
-        self.distance_range = tuple(self.metadata.get("distance_range",
-                                                      fmt.DEFAULT_DISTANCE_RANGE))
-        self.sky_distance = float(self.metadata.get("sky_distance", FAR))
+        self.distance_range, self.sky_distance = fmt.distance_settings(
+            self.metadata, self.root / fmt.METADATA)
         self._rig_masks = [None if m is None else np.asarray(m > 0.5, np.uint8)
                            for m in self.rig.masks]
         self.skip_bad = skip_bad

@@ -1,6 +1,7 @@
 """File I/O at the edge of the functional core, the owner of every on-disk format: rig files
 (:mod:`gijax.io.rigfile`, the gijax YAML format), calibration import (:mod:`gijax.io.kalibr`,
-:mod:`gijax.io.basalt`), the one mask reader, per-camera rig masks and the warning for rigs used
+:mod:`gijax.io.basalt`), text documents read with errors naming the file
+(:mod:`gijax.io.text`), the one mask reader, per-camera rig masks and the warning for rigs used
 without them (:mod:`gijax.io.masks`), PNG files read exactly (:mod:`gijax.io.png`), TensorBoard
 event files (:mod:`gijax.io.events`), the folder lock of every writer (:mod:`gijax.io.lock`),
 and output path checks and the one atomic write with its JSON, NPY, PNG and figure writers

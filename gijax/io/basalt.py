@@ -28,7 +28,7 @@ _POSE_FIELDS = ("px", "py", "pz", "qx", "qy", "qz", "qw")
 
 def _camera(ci, r, w: Where):
     ctype = require(ci, "camera_type", w, f"one of {sorted(MODELS)}")
-    if ctype not in MODELS:
+    if not isinstance(ctype, str) or ctype not in MODELS:
         raise w.error("camera_type", f"one of {sorted(MODELS)}", ctype)
     gmodel, keys = MODELS[ctype]
     values = require(ci, "intrinsics", w, f"a mapping with {list(keys)}")

@@ -48,16 +48,24 @@ def require(d: dict, key: str, where: Where, expected: str):
 
 
 def floats(value, n: Optional[int], field: str, where: Where, shape_text: str) -> np.ndarray:
-    """A finite float64 array with n entries (or any length when n is None)."""
+    """A finite float64 array with n entries (or any length when n is None), every entry within
+    float32's range (the rig is rounded to float32, where a larger one would be infinite).
+
+    With ``n`` the value is a flat list of n numbers (one number when n is 1) or, for a matrix,
+    a square k x k nesting of them; the result is flat, shape (n,)."""
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise where.error(field, shape_text, value) from None
-    if n is not None and arr.size != n:
-        raise where.error(field, shape_text, value)
+    if n is not None:
+        k = int(round(n ** 0.5))
+        if arr.shape not in {(n,), () if n == 1 else (n,), (k, k) if k * k == n > 1 else (n,)}:
+            raise where.error(field, shape_text, value)
     if not np.all(np.isfinite(arr)):
         raise where.error(field, f"finite numbers ({shape_text})", value)
-    return arr.reshape(-1) if n is not None and arr.ndim == 0 else arr
+    if np.any(np.abs(arr) > np.finfo(np.float32).max):
+        raise where.error(field, f"numbers within float32's range ({shape_text})", value)
+    return arr.reshape(-1) if n is not None else arr
 
 
 def check_rotation(r: np.ndarray, field: str, where: Where) -> np.ndarray:
@@ -110,7 +118,7 @@ def checked_camera(model: str, params: dict, res: tuple[int, int], fov_deg, wher
             raise where.error("fov_deg", "one number of degrees in (0, 360]", fov_deg)
         fov_deg = float(fov[0])
     for k in ("fx", "fy"):
-        if params[k] <= 0:
+        if not np.float32(params[k]) > 0:       # positive once rounded to float32
             raise where.error(f"intrinsics.{k}", "a positive focal length in pixels", params[k])
     return make_camera(model, params, res[0], res[1], fov_deg)
 

@@ -63,6 +63,8 @@ def read_png(path: str | os.PathLike, where: str = "") -> np.ndarray:
         data = path.read_bytes()
     except FileNotFoundError:
         raise FileNotFoundError(f"missing file {path}{suffix}") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path} is a folder, not a PNG file{suffix}") from None
     if not data.startswith(PNG_SIGNATURE):
         raise ValueError(f"{path} is not a PNG file (bad signature){suffix}")
     if not data.endswith(PNG_IEND):

@@ -58,6 +58,7 @@ from gijax.io.masks import read_mask
 from gijax.io.parsing import Where, check_rotation, checked_camera, floats, quat_matrix, \
     require, resolution
 from gijax.io.paths import write_png_atomic, write_text_atomic
+from gijax.io.text import one_line, read_text
 
 FORMAT_VERSION = 1
 
@@ -73,16 +74,17 @@ _OCCLUDER_KEYS = ("x", "y", "radius", "z_min", "z_max")
 def _read_yaml(path: Path) -> Any:
     import yaml
 
+    text = read_text(path, "rig file")
     try:
-        with open(path) as f:
-            return yaml.safe_load(f)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML: {exc}") from None
+        raise ValueError(f"{path}: not valid YAML: {one_line(exc)}") from None
 
 
 def _read_json(path: Path) -> Any:
+    text = read_text(path, "calibration file")
     try:
-        return json.loads(path.read_text())
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON: {exc}") from None
 
@@ -96,7 +98,7 @@ def _gijax_camera(i: int, c: dict, where: Where, root: Path):
     if unknown:
         raise w.error(unknown[0], f"only the fields {sorted(_CAMERA_KEYS)}", unknown)
     model = require(c, "model", w, f"a camera model, one of {sorted(CAMERA_MODELS)}")
-    if model not in CAMERA_MODELS:
+    if not isinstance(model, str) or model not in CAMERA_MODELS:
         raise w.error("model", f"one of {sorted(CAMERA_MODELS)}", model)
     names = CAMERA_MODELS[model].PARAMS
     intr = require(c, "intrinsics", w, f"a mapping with {list(names)}")

@@ -51,10 +51,11 @@ def is_bundle(path: str | os.PathLike) -> bool:
 
 
 def read_provenance(path: str | os.PathLike) -> dict:
-    """A bundle's ``PROVENANCE.json`` ({} when it has none or it is not a JSON object)."""
+    """A bundle's ``PROVENANCE.json`` ({} when it has none or it is not a JSON object: it
+    informs, so a damaged one costs only the information)."""
     try:
-        doc = json.loads((Path(path) / PROVENANCE_FILE).read_text())
-    except (OSError, json.JSONDecodeError):
+        doc = json.loads((Path(path) / PROVENANCE_FILE).read_bytes().decode("utf-8"))
+    except (OSError, ValueError):     # ValueError: not UTF-8, or not JSON
         return {}
     return doc if isinstance(doc, dict) else {}
 

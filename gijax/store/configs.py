@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
 from typing import NamedTuple
 
+from gijax.io.text import one_line, read_text
 from gijax.nn.presets import ModelConfig, get_preset
 
 CONFIG_FILE = "config.json"
@@ -43,9 +45,11 @@ def read_preset(spec: str) -> ModelConfig:
     if not path.is_file():
         raise FileNotFoundError(f"{spec}: no such model configuration file")
     try:
-        return model_config_from_dict(json.loads(path.read_text()))
-    except (json.JSONDecodeError, TypeError, AttributeError) as exc:
-        raise ValueError(f"{spec}: not a JSON object of ModelConfig fields ({exc})") from exc
+        return model_config_from_dict(json.loads(read_text(path, "model configuration")))
+    except (ValueError, TypeError, AttributeError, OverflowError) as exc:
+        # ValueError covers bad JSON and ModelConfig's own checks, which do not name the file.
+        raise ValueError(f"{spec}: not a JSON object of ModelConfig fields "
+                         f"({one_line(exc)})") from None
 
 
 class RunConfig(NamedTuple):
@@ -70,8 +74,16 @@ def read_run_config(folder: str | os.PathLike) -> RunConfig:
         raise FileNotFoundError(f"{path}: no run configuration (is {folder} a training run "
                                 f"folder or a bundle?)")
     try:
-        doc = json.loads(path.read_text())
-        return RunConfig(dict(doc["train"]), model_config_from_dict(doc["model"]),
-                         list(doc["candidates"]), str(doc.get("rig", "")))
-    except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as exc:
-        raise ValueError(f"{path}: unreadable run configuration ({exc})") from exc
+        doc = json.loads(read_text(path, "run configuration"))
+        run = RunConfig(dict(doc["train"]), model_config_from_dict(doc["model"]),
+                        list(doc["candidates"]), str(doc.get("rig", "")))
+    except (ValueError, KeyError, TypeError, AttributeError, OverflowError) as exc:
+        # ValueError covers bad JSON and ModelConfig's own checks, which do not name the file.
+        raise ValueError(f"{path}: unreadable run configuration ({type(exc).__name__}: "
+                         f"{one_line(exc)})") from None
+    bad = [c for c in run.candidates if isinstance(c, bool) or not isinstance(c, (int, float))
+           or not math.isfinite(c) or c <= 0]
+    if not run.candidates or bad:
+        raise ValueError(f"{path}: field 'candidates' must be a non-empty list of finite "
+                         f"positive distances in metres; found {run.candidates!r}")
+    return run

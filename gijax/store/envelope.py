@@ -39,9 +39,42 @@ class TrainingEnvelope:
     models: frozenset[str] | None = None
 
 
+class _Unreadable(Exception):
+    """A record's field in a form this reader does not understand: the field is not judged."""
+
+
+def _number(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise _Unreadable()
+    return float(value)
+
+
 def _span(values) -> tuple | None:
-    values = [v for v in values if v is not None]
+    """(min, max) of the recorded numbers (None entries are unrecorded); None when nothing is
+    recorded or any entry is not a finite number (a damaged record is not judged)."""
+    try:
+        values = [_number(v) for v in values if v is not None]
+    except _Unreadable:
+        return None
     return (min(values), max(values)) if values else None
+
+
+def _fovs(records) -> tuple | None:
+    lists = [r.get("fov_deg") or [] for r in records]
+    if any(not isinstance(f, list) for f in lists):
+        return None
+    return _span(f for fovs in lists for f in fovs)
+
+
+def _spacing(records) -> tuple | None:
+    spacings = [r.get("spacing_m") for r in records]
+    if any(not isinstance(s, list) or len(s) != 2 for s in spacings):
+        return None
+    try:
+        pairs = [(_number(s[0]), _number(s[1])) for s in spacings]
+    except _Unreadable:
+        return None
+    return min(p[0] for p in pairs), max(p[1] for p in pairs)
 
 
 def _models_of(record: dict) -> set[str] | None:
@@ -54,27 +87,25 @@ def _models_of(record: dict) -> set[str] | None:
         return {str(lens)}
     from gijax.geometry.layouts import BUILTIN_LAYOUTS, builtin_rig
 
-    if record.get("rig") in BUILTIN_LAYOUTS:          # the rig's own lenses, known by name
+    if isinstance(record.get("rig"), str) and record["rig"] in BUILTIN_LAYOUTS:          # the rig's own lenses, known by name
         return {c.MODEL for c in builtin_rig(record["rig"]).cameras}
     return None
 
 
 def training_envelope(provenance: dict) -> TrainingEnvelope | None:
     """The ranges of the ``data`` records of a provenance document, or None without any."""
-    records = [r for r in provenance.get("data", []) if isinstance(r, dict)
+    data = provenance.get("data", [])
+    data = data if isinstance(data, list) else []
+    records = [r for r in data if isinstance(r, dict)
                and str(r.get("role", "")).startswith("mix")] or [
-        r for r in provenance.get("data", []) if isinstance(r, dict)]
+        r for r in data if isinstance(r, dict)]
     if not records:
         return None
     cameras = _span(r.get("cameras") for r in records)
-    fovs = _span(f for r in records for f in (r.get("fov_deg") or []))
-    spacings = [r.get("spacing_m") for r in records]
-    spacing = (None if any(not isinstance(s, list) or len(s) != 2 for s in spacings)
-               else (min(s[0] for s in spacings), max(s[1] for s in spacings)))
     models = [_models_of(r) for r in records]
     return TrainingEnvelope(
         cameras=None if cameras is None else (int(cameras[0]), int(cameras[1])),
-        fov_deg=fovs, spacing_m=spacing,
+        fov_deg=_fovs(records), spacing_m=_spacing(records),
         models=None if any(m is None for m in models) else frozenset().union(*models))
 
 

@@ -13,19 +13,31 @@ import numpy as np
 
 from gijax.data import format as fmt
 from gijax.geometry import cameras as cam_lib
+from gijax.io.parsing import Where, checked_camera, floats, resolution
 
 SUPPORTED_MODELS = ("DoubleSphere", "LinearSphere")
 
 
 def _shape(spec, where) -> tuple[int, int]:
+    """shape_struct (H, W): positive and within the image-size bounds."""
     ss = fmt.require(spec, "shape_struct", where, dict)
     h = fmt.require(ss, "H", f"{where} shape_struct", int)
     w = fmt.require(ss, "W", f"{where} shape_struct", int)
-    return h, w
+    resolution([w, h], Where(f"{where} shape_struct"))
+    return int(h), int(w)
 
 
 def _num(spec, key, where) -> float:
-    return float(fmt.require(spec, key, where, (int, float)))
+    """A finite number (JSON's NaN and Infinity are refused)."""
+    value = fmt.require(spec, key, where, (int, float))
+    return float(floats(value, 1, key, Where(where), "one finite number")[0])
+
+
+def _fov(spec, where) -> float:
+    fov = _num(spec, "fov_degree", where)
+    if not 0.0 < fov <= 360.0:
+        raise ValueError(f"{where}: field 'fov_degree' must lie in (0, 360] degrees; found {fov}")
+    return fov
 
 
 class ReleaseCameraModel:
@@ -43,22 +55,34 @@ class ReleaseCameraModel:
         self.height, self.width = _shape(spec, where)
         self.padding = "zeros"
         if self.type == "DoubleSphere":
-            for k in ("fx", "fy", "cx", "cy", "xi", "alpha", "fov_degree"):
+            for k in ("fx", "fy", "cx", "cy", "xi", "alpha"):
                 setattr(self, k, _num(spec, k, where))
+            self.fov_degree = _fov(spec, where)
             a, xi = self.alpha, self.xi
+            if not 0.0 <= a <= 1.0 or self.fx <= 0 or self.fy <= 0:
+                raise ValueError(f"{where}: DoubleSphere needs alpha in [0, 1] and positive fx, "
+                                 f"fy; found alpha={a}, fx={self.fx}, fy={self.fy}")
             w1 = a / (1 - a) if a <= 0.5 else (1 - a) / a
-            self.w2 = (w1 + xi) / math.sqrt(2 * w1 * xi + xi * xi + 1)
+            radicand = 2 * w1 * xi + xi * xi + 1
+            if not radicand > 0:
+                raise ValueError(f"{where}: DoubleSphere xi={xi} with alpha={a} has no valid "
+                                 f"projection region")
+            self.w2 = (w1 + xi) / math.sqrt(radicand)
         elif self.type == "LinearSphere":
-            self.fov_degree = _num(spec, "fov_degree", where)
+            self.fov_degree = _fov(spec, where)
             if self.height != self.width:
                 raise ValueError(f"{where}: a LinearSphere image must be square; found "
                                  f"shape_struct H={self.height}, W={self.width}")
         elif self.type == "Equirectangular":
             self.padding = "border"
-            lon = spec.get("longitude_span", [-math.pi, math.pi])
-            lat = spec.get("latitude_span", [-math.pi / 2, math.pi / 2])
-            if len(lon) != 2 or len(lat) != 2:
-                raise ValueError(f"{where}: longitude_span and latitude_span need 2 numbers")
+            at = Where(where)
+            lon = floats(spec.get("longitude_span", [-math.pi, math.pi]), 2, "longitude_span",
+                         at, "2 numbers (radians)")
+            lat = floats(spec.get("latitude_span", [-math.pi / 2, math.pi / 2]), 2,
+                         "latitude_span", at, "2 numbers (radians)")
+            if not (lon[1] > lon[0] and lat[1] > lat[0]):
+                raise ValueError(f"{where}: longitude_span and latitude_span must be increasing; "
+                                 f"found {lon.tolist()}, {lat.tolist()}")
             self.lon0, self.lat0, self.lat1 = float(lon[0]), float(lat[0]), float(lat[1])
             self.lon_span = float(lon[1]) - float(lon[0])
             if spec.get("open_span", False):
@@ -110,16 +134,16 @@ def gijax_camera(spec: dict, where: str):
         p = {k: _num(spec, k, where) for k in ("fx", "fy", "cx", "cy", "xi", "alpha")}
         p["cx"] -= 0.5
         p["cy"] -= 0.5
-        return cam_lib.make_camera("ds", p, w, h, _num(spec, "fov_degree", where))
+        return checked_camera("ds", p, (w, h), _fov(spec, where), Where(where))
     if kind == "LinearSphere":
         if h != w:
             raise ValueError(f"{where}: a LinearSphere image must be square; found "
                              f"shape_struct H={h}, W={w}")
-        fov_deg = _num(spec, "fov_degree", where)
+        fov_deg = _fov(spec, where)
         f = w / math.radians(fov_deg)
         c = w / 2 - 0.5
-        return cam_lib.make_camera("equidistant", {"fx": f, "fy": f, "cx": c, "cy": c}, w, h,
-                                   fov_deg)
+        return checked_camera("equidistant", {"fx": f, "fy": f, "cx": c, "cy": c}, (w, h),
+                              fov_deg, Where(where))
     raise ValueError(f"{where}: camera model type {kind!r} has no gijax equivalent for an input "
                      f"camera; supported: {', '.join(SUPPORTED_MODELS)} (gijax models: "
                      f"{', '.join(sorted(cam_lib.CAMERA_MODELS))})")

@@ -3,29 +3,45 @@
 from __future__ import annotations
 
 import collections
+import math
 from pathlib import Path
 
 import numpy as np
 
 from gijax.data import format as fmt
+from gijax.io.parsing import Where, floats
+
+# Tolerance on |R^T R - I| of a frame graph's rotation_matrix.
+RELEASE_ROTATION_TOL = 1e-3
+
+
+def _num(spec, key, where) -> float:
+    """A finite number (JSON's NaN and Infinity are refused)."""
+    value = fmt.require(spec, key, where, (int, float))
+    return float(floats(value, 1, key, Where(where), "one finite number")[0])
 
 
 def _orientation(doc, where) -> np.ndarray:
+    """A rotation matrix. The release uses a matrix as it is; one that is far from a rotation
+    (beyond :data:`RELEASE_ROTATION_TOL`, looser than a calibration file's since these files
+    print few digits) is refused, since every pose chained through it would be skewed."""
     kind = fmt.require(doc, "type", where, str)
     data = fmt.require(doc, "data", where, (list, dict))
     if kind == "rotation_matrix":
-        m = np.asarray(data, np.float64)
-        if m.size != 9:
-            raise ValueError(f"{where}: rotation_matrix data must hold 9 numbers (row-major "
-                             f"3x3); found {m.size}")
-        return m.reshape(3, 3)
+        m = floats(data, 9, "data", Where(where), "9 numbers (row-major 3x3)").reshape(3, 3)
+        err = float(np.abs(m.T @ m - np.eye(3)).max())
+        if err > RELEASE_ROTATION_TOL or np.linalg.det(m) <= 0:
+            raise ValueError(f"{where}: rotation_matrix data must be a proper rotation "
+                             f"(|R^T R - I| = {err:.3g}, det = {np.linalg.det(m):.3g}); found "
+                             f"{m.tolist()}")
+        return m
     if kind == "quaternion":
         if not isinstance(data, dict):
             raise ValueError(f"{where}: quaternion data must be an object with x, y, z, w")
-        q = np.array([fmt.require(data, k, where, (int, float)) for k in "wxyz"], np.float64)
+        q = np.array([_num(data, k, where) for k in "wxyz"], np.float64)
         n = np.linalg.norm(q)
-        if n == 0:
-            raise ValueError(f"{where}: quaternion has zero norm")
+        if not n > 1e-12 or not math.isfinite(n):
+            raise ValueError(f"{where}: quaternion has norm {n:.3g}; expected a rotation")
         w, x, y, z = q / n  # the release's pyquaternion normalises before building the matrix
         return np.array([
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -36,9 +52,8 @@ def _orientation(doc, where) -> np.ndarray:
 
 
 def _pose(doc, where) -> np.ndarray:
-    t = np.asarray(fmt.require(doc, "position", where, list), np.float64)
-    if t.shape != (3,):
-        raise ValueError(f"{where}: position must hold 3 numbers; found {t.size}")
+    t = floats(fmt.require(doc, "position", where, list), 3, "position", Where(where),
+               "3 numbers in metres")
     T = np.eye(4)
     T[:3, :3] = _orientation(fmt.require(doc, "orientation", where, dict), f"{where} orientation")
     T[:3, 3] = t
