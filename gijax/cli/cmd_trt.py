@@ -9,8 +9,8 @@ DESCRIPTION = """\
 build: parse an exported ONNX file with the installed TensorRT and write a serialized engine
 (plus a .plan.json build record); prints the equivalent trtexec command for building on a
 Jetson. fp16: builder flag on TensorRT <= 10; on 11.x precision comes from the ONNX file.
---stronglyTyped builds a strongly typed network (precision from the file's types, no precision
-builder flags): the default on 10.x for an fp16 or int8 export, always on 11.x; not on 8.x.
+Strongly typed networks (precision from the file's types, no precision builder flags): the
+default on 10.x for an fp16 or int8 export, always on 11.x, not available on 8.x.
 
 run: load an engine (refusing one built by another TensorRT version), feed it one image per
 camera and time it. Engines are tied to the TensorRT version and the GPU: build on the target.
