@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     from gijax.evaluate.metrics import evaluate_batch
     from gijax.export.onnx_export import OUTPUTS, export_onnx, model_rig
     from gijax.export.ort_session import make_session
-    from gijax.export.precision import naive_fp16, plan_fp16
+    from gijax.export.precision import FLOAT, naive_fp16, plan_fp16
     from gijax.io.rigfile import load_rig
     from gijax.model import model_panorama
     from gijax.render import render_sample
@@ -85,12 +85,21 @@ def main(argv=None) -> int:
     cand, _ = resolve_candidates("train", rig, cfg.num_candidates, cfg.d_min, cfg.d_max,
                                  train=train_cand, kind=cfg.candidates)
     run_rig, pano = model_rig(cfg, rig), model_panorama(cfg)
+    probes = {}
     with tempfile.TemporaryDirectory() as tmp:
         paths = {"fp32": Path(tmp) / "fp32.onnx"}
         export_onnx(model, rig, cand, paths["fp32"])
+        if args.size == "paper":
+            # Untrained weights barely move the output: look inside as well.
+            proto = onnx.load(str(paths["fp32"]))
+            probes = probe_tensors(proto)
+            add_outputs(proto, probes, FLOAT)
+            onnx.save_model(proto, str(paths["fp32"]))
         for name, convert in (("plan", plan_fp16), ("naive", naive_fp16)):
             proto = onnx.load(str(paths["fp32"]))
             convert(proto)
+            # The probes are outputs already: float32 in the plan, computed in float16 and
+            # cast back to float32 by the naive conversion (a float32 interface).
             paths[name] = Path(tmp) / f"{name}.onnx"
             onnx.save_model(proto, str(paths[name]))
         if with_int8:
@@ -99,6 +108,7 @@ def main(argv=None) -> int:
                         calibration_scenes=args.calibration)
         sessions = {k: make_session(str(p)) for k, p in paths.items()}
         preds = {k: [] for k in sessions}
+        probed = {k: {p: [] for p in probes} for k in sessions if k != "int8"}
         labels = []
         for i in range(args.scenes):
             s = render_sample(run_rig, 2000 + i, pano=pano)
@@ -106,8 +116,12 @@ def main(argv=None) -> int:
                     "masks": s["masks"][None].astype(np.float32)}
             labels.append(s["pano_distance"])
             for k, sess in sessions.items():
-                out = dict(zip(OUTPUTS, sess.run(list(OUTPUTS), feed)))
+                names = list(OUTPUTS) + (list(probes.values()) if k in probed else [])
+                out = dict(zip(names, sess.run(names, feed)))
                 preds[k].append(out["inv_distance"][0])
+                for p, tensor in probes.items():
+                    if k in probed:
+                        probed[k][p].append(out[tensor].astype(np.float32))
     distance = np.stack(labels)
     valid = np.ones_like(distance)
     rows = {}
@@ -122,6 +136,16 @@ def main(argv=None) -> int:
                    "mean_rel_diff_vs_fp32": float(diff.mean() / np.abs(ref).mean())}
         if trained:
             rows[k]["mae"] = float(evaluate_batch(inv, distance, valid, cand)["mae"])
+    inside = {}
+    for p in probes:
+        ref_p = np.stack(probed["fp32"][p])
+        for k in probed:
+            d = np.abs(np.stack(probed[k][p]) - ref_p)
+            inside.setdefault(k, {})[p] = {"max_abs_diff": float(d.max()),
+                                           "mean_abs_diff": float(d.mean()),
+                                           "mean_rel_diff": float(d.mean()
+                                                                  / np.abs(ref_p).mean())}
+    coords = coordinate_rounding(cfg, run_rig, cand, pano) if args.size == "paper" else {}
     (h, w) = run_rig.cameras[0].height, run_rig.cameras[0].width
     print(f"{label} ({w} x {h} fisheyes, {pano.height} x {pano.width} output) on "
           f"{args.scenes} rendered scenes of {args.rig}"
@@ -134,12 +158,68 @@ def main(argv=None) -> int:
         print(f"{k:6s} " + (f"{r['mae']:10.5f} " if trained else "")
               + f"{r['max_abs_diff_vs_fp32']:16.2e} {r['p99_abs_diff_vs_fp32']:16.2e} "
               f"{r['mean_abs_diff_vs_fp32']:17.2e} {r['mean_rel_diff_vs_fp32']:16.2e}")
+    if inside:
+        print("inside the network (the input of each island's first convolution), |d| vs fp32:")
+        print(f"{'file':6s} " + " ".join(f"{p + ' max':>20s} {p + ' mean':>20s} "
+                                         f"{p + ' mean / mean':>24s}" for p in probes))
+        for k, per in inside.items():
+            print(f"{k:6s} " + " ".join(
+                f"{per[p]['max_abs_diff']:20.2e} {per[p]['mean_abs_diff']:20.2e} "
+                f"{per[p]['mean_rel_diff']:24.2e}" for p in probes))
+    for what, err in coords.items():
+        print(f"float16 rounding of the baked {what}: largest {err['max_px']:.3f} px, mean "
+              f"{err['mean_px']:.3f} px (coordinates up to {err['max_coordinate']:.0f} px)")
     if args.json:
         Path(args.json).write_text(json.dumps({
             "size": args.size, "model": label, "rig": args.rig, "scenes": args.scenes,
             "image_hw": [h, w], "output_hw": [pano.height, pano.width],
-            "calibration": args.calibration if with_int8 else None, "rows": rows}, indent=2))
+            "calibration": args.calibration if with_int8 else None, "rows": rows,
+            "inside": inside, "probes": probes, "coordinate_rounding": coords}, indent=2))
     return 0
+
+
+def probe_tensors(proto) -> dict:
+    """{'surrogates': ..., 'cost volume': ...}: the names of the tensors that enter the first
+    convolution of the precision plan's first and last islands (the resampled surrogate images
+    and the fused cost volume), float32 in the fp32 file and in the plan, computed in float16
+    by the naive conversion."""
+    from gijax.export.precision import fp16_islands
+
+    islands = fp16_islands(proto)
+    if len(islands) < 2:
+        raise ValueError(f"expected the plan's two islands; found {len(islands)}")
+    nodes = proto.graph.node
+    return {"surrogates": nodes[islands[0].first].input[0],
+            "cost volume": nodes[islands[-1].first].input[0]}
+
+
+def add_outputs(proto, probes: dict, elem_type: int) -> None:
+    """Make the ``probes`` tensors graph outputs too."""
+    from onnx import helper
+
+    for name in probes.values():
+        proto.graph.output.append(helper.make_tensor_value_info(name, elem_type, None))
+
+
+def coordinate_rounding(cfg, run_rig, cand, pano) -> dict:
+    """How far float16 moves the sampling coordinates baked into the file: the fisheye pixel
+    of every surrogate pixel and the feature-map pixel of every sweep point (valid ones),
+    in pixels."""
+    from gijax.model import model_grids
+    from gijax.sweep.grids import surrogate_resampling
+
+    maps = surrogate_resampling(run_rig, cfg.surrogate_hw)
+    grids = model_grids(cfg, run_rig, np.asarray(cand, np.float32), pano)
+    out = {}
+    for what, px, ok in (("fisheye pixel of each surrogate pixel", maps.fisheye_px,
+                          maps.fisheye_ok),
+                         ("feature-map pixel of each sweep point", grids.sweep_px,
+                          grids.sweep_ok)):
+        px = np.asarray(px, np.float32)[np.asarray(ok, bool)]
+        err = np.abs(px.astype(np.float16).astype(np.float32) - px)
+        out[what] = {"max_px": float(err.max()), "mean_px": float(err.mean()),
+                     "max_coordinate": float(np.abs(px).max())}
+    return out
 
 
 def paper_model(preset: str, release_weights: str | None):
