@@ -241,7 +241,6 @@ def measure_presets(presets: Sequence[str], reps: int = 3, onnx: bool = True,
     return rows
 
 
-
 def versus_fp32(rows: Sequence[dict]) -> list[dict]:
     """``rows`` (one per preset and precision) with ``speedup_vs_fp32`` (the fp32 file's
     seconds over this file's) and ``peak_vs_fp32`` (this file's peak over the fp32 file's),
