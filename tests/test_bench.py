@@ -356,3 +356,34 @@ def test_torch_peer_table_shows_both_frameworks():
     assert "PyTorch twin" in title
     assert "| G16VV-cpu | train | 8 | 1.100 | 1.234 | 1.500 | 0.600 | 0.720 | 0.900 |" in text
     assert "| 1.71 |" in text and "| 1.26 | 0.95 | torchvision.ops.deform_conv2d |" in text
+
+
+def test_precision_case_ratios_table_and_options():
+    """The precision case: speed-up and peak ratios against the same preset's fp32 row (hand
+    arithmetic), its table, its suite defaults and options; it runs only when named."""
+    import argparse
+
+    from gijax.bench.isolated import versus_fp32
+    from gijax.bench.suite import DEFAULT_CASES, SUITES, add_arguments, case_tables
+
+    rows = versus_fp32([
+        {"preset": "P", "precision": "fp32", "ort_s": 0.6, "peak_gb": 0.20, "onnx_mb": 7.7},
+        {"preset": "P", "precision": "int8", "ort_s": 0.4, "peak_gb": 0.25, "onnx_mb": 2.1},
+        {"preset": "Q", "precision": "fp16", "ort_s": 1.0, "peak_gb": 0.5, "onnx_mb": 4.0}])
+    assert rows[0]["speedup_vs_fp32"] == 1.0 and rows[0]["peak_vs_fp32"] == 1.0
+    assert rows[1]["speedup_vs_fp32"] == pytest.approx(1.5)
+    assert rows[1]["peak_vs_fp32"] == pytest.approx(1.25)
+    assert rows[2]["speedup_vs_fp32"] is None  # no fp32 row of Q
+    title, got, cols = case_tables({"calibration": {"rows": []}, "cases": {
+        "precision": {"rows": rows, "calibration_scenes": 2}}})[-1]
+    text = report.markdown_table(got, cols)
+    assert "2 rendered scene(s)" in title and "| P | int8 | 2.1 | 0.400 | 1.50 | 0.25 | 1.25 |" \
+        in text
+    assert "precision" not in DEFAULT_CASES
+    assert SUITES["quick"].precision_presets == ("G16VV-cpu",)
+    assert SUITES["full"].precision_presets == ("G16VV-cpu", "G16VV")
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    a = p.parse_args(["--cases", "precision", "--precision-presets", "G16VV-cpu", "G16VV",
+                      "--precision-calibration", "1"])
+    assert a.precision_presets == ["G16VV-cpu", "G16VV"] and a.precision_calibration == 1

@@ -493,3 +493,61 @@ def test_isolated_onnxruntime_child_reports_memory_without_jax(setup):
     assert row["ort_s"] > 0
     with pytest.raises(RuntimeError, match="exit status"):
         run_child(["ort", path + ".missing", "--reps", "1"])
+
+
+def test_trt_build_strongly_typed_follows_the_file_and_refuses_contradictions(setup, tmp_path,
+                                                                            capsys):
+    """On 10.x an fp16 or int8 (Q/DQ) file builds strongly typed by default (creation flag 5,
+    no builder flag, '--stronglyTyped' in the trtexec line), a float32 file weakly typed;
+    --stronglyTyped with --fp16, on 8.x, and --no-stronglyTyped on 11.x are refused in one
+    line before the builder is touched."""
+    from gijax.export.precision import plan_fp16
+    from gijax.export.trt_engine import build_engine, typed_precision
+
+    fp32 = str(setup["baked"].path)
+    proto = onnx.load(fp32)
+    plan_fp16(proto)
+    fp16 = str(tmp_path / "fp16.onnx")
+    onnx.save_model(proto, fp16)
+    scale = helper.make_tensor("s", TensorProto.FLOAT, [], [0.1])
+    zero = helper.make_tensor("z", TensorProto.INT8, [], [0])
+    qdq = _model([helper.make_node("QuantizeLinear", ["x", "s", "z"], ["q"]),
+                  helper.make_node("DequantizeLinear", ["q", "s", "z"], ["y"])],
+                 [_vi("x", TensorProto.FLOAT, [4])], [_vi("y", TensorProto.FLOAT, [4])],
+                 inits=[scale, zero])
+    int8 = str(tmp_path / "int8.onnx")
+    onnx.save_model(qdq, int8)
+    assert [typed_precision(p) for p in (fp32, fp16, int8)] == ["fp32", "fp16", "int8"]
+
+    strong = ("network_flags", 1 << 5)
+    for path, expect in ((fp16, True), (int8, True), (fp32, False)):
+        t10 = _Recorder("10.3.0")
+        info = build_engine(path, str(tmp_path / "e.plan"), trt=t10)
+        assert info["strongly_typed"] is expect
+        assert [c for c in t10.calls if c[0] == "network_flags"] == [
+            ("network_flags", 1 << 5 if expect else 0)]
+        assert not any(c[0] == "flag" for c in t10.calls)
+        assert ("--stronglyTyped" in info["trtexec"]) is expect
+        assert json.loads((tmp_path / "e.plan.json").read_text())["strongly_typed"] is expect
+    # Asked for explicitly: a float32 file strongly typed; the FP16 flag keeps weak typing.
+    t10 = _Recorder("10.3.0")
+    assert build_engine(fp32, str(tmp_path / "f.plan"), strongly_typed=True,
+                        trt=t10)["strongly_typed"] and strong in t10.calls
+    t10 = _Recorder("10.3.0")
+    info = build_engine(fp16, str(tmp_path / "g.plan"), fp16=True, trt=t10)
+    assert ("network_flags", 0) in t10.calls and ("flag", "fp16") in t10.calls
+    assert "--fp16" in info["trtexec"] and "--stronglyTyped" not in info["trtexec"]
+
+    for version, kw, match in (("10.3.0", dict(strongly_typed=True, fp16=True), "contradict"),
+                               ("8.5.2", dict(strongly_typed=True), "no strongly typed mode"),
+                               ("11.0.1", dict(strongly_typed=False), "always strongly|every "
+                                                                     "network strongly")):
+        rec = _Recorder(version)
+        with pytest.raises(ValueError, match=match):
+            build_engine(fp16, str(tmp_path / "h.plan"), trt=rec, **kw)
+        assert rec.calls == [] and not (tmp_path / "h.plan").exists()
+    # The command line refuses the contradiction even where TensorRT is not installed.
+    assert main(["trt", "build", fp16, "--out", str(tmp_path / "i.plan"), "--stronglyTyped",
+                 "--fp16"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--stronglyTyped and --fp16 contradict" in err[0]

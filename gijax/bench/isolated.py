@@ -108,7 +108,9 @@ def jax_child(name: str, reps: int) -> dict:
     return row
 
 
-def export_child(name: str, path: str) -> dict:
+def export_child(name: str, path: str, precision: str = "fp32", calibration: int = 1) -> dict:
+    """Write ``name``'s file (random weights, the 3-camera training rig baked in) in
+    ``precision``; int8 is calibrated on ``calibration`` rendered scenes."""
     import numpy as np
 
     from gijax.export.onnx_export import export_onnx
@@ -119,9 +121,10 @@ def export_child(name: str, path: str) -> dict:
     model = create_model(cfg, seed=0)
     cand = np.geomspace(cfg.d_min, cfg.d_max, cfg.num_candidates).astype(np.float32)
     t0 = time.perf_counter()
-    export_onnx(model, builtin_rig("paper-train"), cand, path)
-    return {"preset": name, "export_s": time.perf_counter() - t0,
-            "onnx_mb": os.path.getsize(path) / 1e6}
+    export_onnx(model, builtin_rig("paper-train"), cand, path, precision=precision,
+                calibration_scenes=calibration)
+    return {"preset": name, "precision": precision, "export_s": time.perf_counter() - t0,
+            "onnx_mb": os.path.getsize(path) / 1e6, "peak_gb_export": peak_rss_gb()}
 
 
 def ort_child(path: str, memory: str, reps: int, threads: int | None = None) -> dict:
@@ -161,6 +164,8 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     e = sub.add_parser("export")
     e.add_argument("preset")
     e.add_argument("path")
+    e.add_argument("--precision", default="fp32")
+    e.add_argument("--calibration", type=int, default=1)
     o = sub.add_parser("ort")
     o.add_argument("path")
     o.add_argument("--memory", default="default")
@@ -170,7 +175,7 @@ def child_main(argv: Sequence[str] | None = None) -> int:
     if a.mode == "jax":
         row = jax_child(a.preset, a.reps)
     elif a.mode == "export":
-        row = export_child(a.preset, a.path)
+        row = export_child(a.preset, a.path, a.precision, a.calibration)
     else:
         row = ort_child(a.path, a.memory, a.reps, a.threads)
     print(json.dumps(row), flush=True)
@@ -221,7 +226,7 @@ def measure_presets(presets: Sequence[str], reps: int = 3, onnx: bool = True,
                 path = folder / f"{name}.onnx"
                 log(f"isolated {name}: export ...")
                 row.update({k: v for k, v in run_child(["export", name, path], log).items()
-                            if k != "preset"})
+                            if k in ("export_s", "onnx_mb")})
                 for prof in memory_profiles:
                     log(f"isolated {name}: onnxruntime ({prof}) ...")
                     got = run_child(["ort", path, "--memory", prof, "--reps", reps], log)
@@ -234,6 +239,55 @@ def measure_presets(presets: Sequence[str], reps: int = 3, onnx: bool = True,
             log("  " + ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
                                  for k, v in row.items() if k.endswith(("_s", "_gb", "sum"))))
     return rows
+
+
+def versus_fp32(rows: Sequence[dict]) -> list[dict]:
+    """``rows`` (one per preset and precision) with ``speedup_vs_fp32`` (the fp32 file's
+    seconds over this file's) and ``peak_vs_fp32`` (this file's peak over the fp32 file's),
+    taken against the fp32 row of the same preset; None where that preset has no fp32 row."""
+    fp32 = {r["preset"]: r for r in rows if r["precision"] == "fp32"}
+    out = []
+    for r in rows:
+        ref = fp32.get(r["preset"])
+        out.append({**r, "speedup_vs_fp32": ref["ort_s"] / r["ort_s"] if ref else None,
+                    "peak_vs_fp32": r["peak_gb"] / ref["peak_gb"] if ref else None})
+    return out
+
+
+def measure_precisions(presets: Sequence[str], precisions: Sequence[str] = ("fp32", "fp16",
+                                                                              "int8"),
+                       reps: int = 3, calibration: int = 1, threads: int | None = None,
+                       log: Callable[[str], None] = print,
+                       keep_dir: str | Path | None = None) -> list[dict]:
+    """One row per preset and precision: the file exported in that precision (random weights,
+    int8 calibrated on ``calibration`` rendered scenes; export seconds and the exporting
+    process's peak) and run by onnxruntime (CPU, default memory profile) in a fresh process
+    without JAX: median seconds per forward over ``reps`` after one warm-up, the process's
+    peak resident set, and the ratios of :func:`versus_fp32`."""
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(keep_dir) if keep_dir else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in presets:
+            for prec in precisions:
+                path = folder / f"{name}-{prec}.onnx"
+                log(f"precision {name} {prec}: export ...")
+                row = run_child(["export", name, path, "--precision", prec,
+                                 "--calibration", calibration], log)
+                log(f"precision {name} {prec}: onnxruntime ...")
+                args = ["ort", path, "--reps", reps]
+                if threads:
+                    args += ["--threads", threads]
+                got = run_child(args, log)
+                row.update({k: got[k] for k in ("ort_s", "peak_gb", "peak_gb_session",
+                                                "session_s", "imported_jax", "onnxruntime")})
+                row["calibration_scenes"] = calibration if prec == "int8" else None
+                rows.append(row)
+                log(f"  {name} {prec}: {row['ort_s']:.3f} s, peak {row['peak_gb']:.2f} GB, "
+                    f"{row['onnx_mb']:.1f} MB")
+                if not keep_dir:
+                    path.unlink()
+    return versus_fp32(rows)
 
 
 if __name__ == "__main__":

@@ -45,6 +45,8 @@ class SuiteSettings:
     scaling_cameras: tuple
     scaling_candidates: tuple
     isolated_presets: tuple = ()
+    precision_presets: tuple = ("G16VV-cpu",)
+    precision_calibration: int = 2
     torch_presets: tuple = TORCH_PEER_PRESETS
     torch_batches: tuple = (8, 4)
     torch_modes: tuple = ("infer", "train")
@@ -76,16 +78,18 @@ SUITES = {
         rtss_cameras=(3, 4, 5), train_presets=("G16VV",), train_batch=2, train_steps=5,
         scaling_preset="G16VV", scaling_cameras=(3, 4, 5), scaling_candidates=(8, 16, 32),
         isolated_presets=PAPER_PRESETS + ("G16VV-plain",),
+        precision_presets=("G16VV-cpu", "G16VV"), precision_calibration=1,
         reps=10, warmup=2, scaling_reps=20, matmul_n=4096, bandwidth_mib=1024),
 }
 # On a GPU the calibration needs bigger problems to reach the device's limits.
 GPU_CALIBRATION = {"matmul_n": 8192, "bandwidth_mib": 2048}
 
 CASE_ORDER = ("forward", "stages", "onnx", "sweep", "candidates", "rtss", "train", "scaling",
-              "isolated", "torch-peer")
-# 'isolated' spawns fresh processes per preset and exports every network, 'torch-peer' spawns
-# fresh processes per preset, mode, batch, framework and round: they run when asked.
-ON_REQUEST = ("isolated", "torch-peer")
+              "isolated", "precision", "torch-peer")
+# 'isolated' spawns fresh processes per preset and exports every network, 'precision' exports
+# and runs three files per preset in fresh processes, 'torch-peer' spawns fresh processes per
+# preset, mode, batch, framework and round: they run when asked.
+ON_REQUEST = ("isolated", "precision", "torch-peer")
 DEFAULT_CASES = tuple(c for c in CASE_ORDER if c not in ON_REQUEST)
 
 
@@ -206,6 +210,14 @@ ISOLATED_COLS = [("preset", "preset"), ("same network as", "same_as"), *[(f"{k} 
     ("ORT low s", "ort_low_s", ".2f"), ("ORT low GB", "ort_low_peak_gb", ".2f")]
 
 
+PRECISION_COLS = [
+    ("preset", "preset"), ("file", "precision"), ("MB", "onnx_mb", ".1f"),
+    ("ORT s", "ort_s", ".3f"), ("speed-up vs fp32", "speedup_vs_fp32", ".2f"),
+    ("ORT peak GB", "peak_gb", ".2f"), ("peak vs fp32", "peak_vs_fp32", ".2f"),
+    ("session s", "session_s", ".2f"), ("export s", "export_s", ".1f"),
+    ("export peak GB", "peak_gb_export", ".2f")]
+
+
 TORCH_PEER_COLS = [
     ("preset", "preset"), ("mode", "mode"), ("batch", "batch"),
     ("gijax min s", "gijax_s_min", ".3f"), ("gijax median s", "gijax_s_median", ".3f"),
@@ -287,6 +299,16 @@ def case_tables(result: dict) -> list[tuple[str, list, list]]:
         out.append(("Each preset in fresh processes: JAX whole forward and stages (surrogates "
                     "in), onnxruntime on the exported file (raw fisheyes in, a process without "
                     "JAX); peak resident set per process", rows, ISOLATED_COLS))
+    if "precision" in cases:
+        prec = cases["precision"]
+        title = ("onnxruntime (CPU) on the fp32, fp16-plan and int8 files of each preset "
+                 "(random weights, int8 calibrated on "
+                 f"{prec.get('calibration_scenes')} rendered scene(s)); a fresh process per "
+                 "file, peak resident set per process")
+        if prec.get("skipped"):
+            out.append((title + f": skipped, {prec['skipped']}", [], []))
+        else:
+            out.append((title, prec["rows"], PRECISION_COLS))
     if "torch-peer" in cases:
         peer = cases["torch-peer"]
         title = ("gijax vs its PyTorch twin (fresh process per measurement, frameworks "
@@ -380,14 +402,23 @@ def add_arguments(parser) -> None:
                         help=f"run only these cases (default: {', '.join(DEFAULT_CASES)}; "
                              "'isolated' measures every preset of the suite in fresh processes, "
                              "JAX and onnxruntime, with each process's peak memory; "
+                             "'precision' runs the fp32, fp16 and int8 files in onnxruntime, "
+                             "fresh processes; "
                              "'torch-peer' times gijax against its PyTorch twin, inference "
-                             "and training step, in fresh processes; both run only when "
+                             "and training step, in fresh processes; these three run only when "
                              "named); the calibration always runs")
     parser.add_argument("--reps", type=int, default=None,
                         help="timed repetitions per measurement (default: the suite's)")
     parser.add_argument("--warmup", type=int, default=None,
                         help="untimed warm-up calls (default: the suite's)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    prec = parser.add_argument_group("precision case")
+    prec.add_argument("--precision-presets", nargs="+", default=None, metavar="PRESET",
+                      help="presets whose fp32 / fp16 / int8 files are timed (default: "
+                           "G16VV-cpu in the quick suite, G16VV-cpu G16VV in the full one)")
+    prec.add_argument("--precision-calibration", type=int, default=None, metavar="SCENES",
+                      help="rendered scenes the int8 file is calibrated on (default: 2 "
+                           "quick, 1 full)")
     peer = parser.add_argument_group("torch-peer case")
     peer.add_argument("--torch-presets", nargs="+", default=None, metavar="PRESET",
                       help=f"presets to time (default: {' '.join(TORCH_PEER_PRESETS)}; paper "
@@ -411,7 +442,9 @@ def run_from_args(args) -> int:
     log = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
     peer = {"torch_presets": args.torch_presets, "torch_batches": args.torch_batches,
             "torch_modes": args.torch_modes, "torch_rounds": args.torch_rounds,
-            "torch_threads": args.torch_threads, "torch_python": args.torch_python}
+            "torch_threads": args.torch_threads, "torch_python": args.torch_python,
+            "precision_presets": args.precision_presets,
+            "precision_calibration": args.precision_calibration}
     overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in peer.items()
                  if v is not None}
     result = run_suite(args.suite, args.device, args.out, args.cases, args.reps, args.warmup,

@@ -9,6 +9,8 @@ DESCRIPTION = """\
 build: parse an exported ONNX file with the installed TensorRT and write a serialized engine
 (plus a .plan.json build record); prints the equivalent trtexec command for building on a
 Jetson. fp16: builder flag on TensorRT <= 10; on 11.x precision comes from the ONNX file.
+Strongly typed networks (precision from the file's types, no precision builder flags): the
+default on 10.x for an fp16 or int8 export, always on 11.x, not available on 8.x.
 
 run: load an engine (refusing one built by another TensorRT version), feed it one image per
 camera and time it. Engines are tied to the TensorRT version and the GPU: build on the target.
@@ -16,6 +18,8 @@ camera and time it. Engines are tied to the TensorRT version and the GPU: build 
 
 
 def register(subparsers) -> None:
+    import argparse
+
     from gijax.cli.options import RawHelpFormatter, add_rig_option
 
     p = subparsers.add_parser("trt", help=HELP, description=DESCRIPTION,
@@ -26,6 +30,11 @@ def register(subparsers) -> None:
     b.add_argument("--out", required=True, metavar="MODEL.plan",
                    help="engine file to write (a .plan.json build record beside it)")
     b.add_argument("--fp16", action="store_true", help="allow fp16 kernels (TensorRT <= 10)")
+    b.add_argument("--stronglyTyped", "--strongly-typed", dest="strongly_typed",
+                   action=argparse.BooleanOptionalAction, default=None,
+                   help="strongly typed network: every tensor keeps the ONNX file's type, so "
+                        "an fp16 / int8 export builds as written (TensorRT >= 10; default: on "
+                        "for an fp16 or int8 file on 10.x, always on 11.x; not with --fp16)")
     b.add_argument("--workspace", type=int, metavar="MB", help="builder workspace limit, MiB")
     b.add_argument("--max-batch", type=int, default=1,
                    help="largest batch of a dynamic-batch file's optimisation profile")
@@ -53,10 +62,13 @@ def run_build(args) -> int:
 
     try:
         info = build_engine(args.onnx, args.out, fp16=args.fp16, workspace_mb=args.workspace,
-                            max_batch=args.max_batch)
+                            max_batch=args.max_batch, strongly_typed=args.strongly_typed)
     except TensorRTMissing as exc:
         return _missing(exc)
-    print(f"wrote {info['plan']} with TensorRT {info['version']} in {info['seconds']:.1f} s")
+    typing = ("strongly typed: precision from the file's types" if info["strongly_typed"]
+              else "weakly typed" + (", FP16 builder flag" if args.fp16 else ""))
+    print(f"wrote {info['plan']} with TensorRT {info['version']} in {info['seconds']:.1f} s "
+          f"({info['file_precision']} file, {typing})")
     print(f"equivalent on the device: {info['trtexec']}")
     return 0
 

@@ -17,8 +17,9 @@ Graph-level rules (errors unless stated):
 * symbolic (dynamic) dimensions: a *warning* (the engine needs an optimisation profile).
 * float16 tensors (a ``--precision fp16`` export): a *warning* on 8.5 (no strongly typed mode:
   the ``--fp16`` builder flag lets TensorRT pick per layer, so the file's float32 islands are a
-  request, not a guarantee) and on 10.x (build with ``--stronglyTyped`` to run the types as
-  written); 11.x networks are strongly typed.
+  request, not a guarantee) and on 10.x (build strongly typed to run the types as written:
+  ``gijax trt build`` does so by default for such a file, ``trtexec`` needs
+  ``--stronglyTyped``); 11.x networks are strongly typed.
 
 Operator rules (:data:`OP_RULES`): the first TensorRT version that parses the operator and the
 data types it accepts. Notable rows:
@@ -355,8 +356,9 @@ def check_model(model, targets=TARGETS) -> CompatReport:
                     "(the builder picks per layer, the float32 islands are not enforced)")))
             elif t.version < (11, 0):
                 findings.append(Finding(t.key, "warning", "(graph)", (
-                    "float16 tensors: build with --stronglyTyped to run the file's types as "
-                    "written (--fp16 lets the builder pick per layer)")))
+                    "float16 tensors: build strongly typed to run the file's types as written "
+                    "('gijax trt build' does by default, trtexec needs --stronglyTyped; "
+                    "--fp16 instead lets the builder pick per layer)")))
     wide = {name for name, dt in ctx.dtypes.items() if dt in ("i64", "f64")}
     op_counts, op_dtypes = Counter(), defaultdict(set)
     wide_ops = defaultdict(Counter)

@@ -5,9 +5,20 @@ Version differences handled here:
 
 * 8.x: networks from ONNX need the EXPLICIT_BATCH creation flag; the workspace is a memory-pool
   limit (8.4+); fp16 is the FP16 builder flag.
-* 10.x: explicit batch is implicit (no flag); fp16 is still the FP16 builder flag.
-* 11.x: the FP16 builder flag is gone and networks are strongly typed: precision comes from the
-  ONNX file (convert it to mixed precision before building), so ``fp16=True`` is an error.
+* 10.x: explicit batch is implicit (no flag); fp16 is still the FP16 builder flag. Strongly
+  typed networks (the STRONGLY_TYPED creation flag, ``trtexec --stronglyTyped``) are an opt-in:
+  every tensor keeps the type the ONNX file gives it, so a ``--precision fp16`` export runs its
+  float16 islands in fp16 and its float32 islands in fp32, and an int8 (QDQ) export quantises
+  where its Q/DQ pairs say. That is the default here for a file with float16 tensors or Q/DQ
+  nodes; a plain float32 file keeps the weakly typed build (``fp16=True`` lets the builder
+  pick fp16 per layer).
+* 11.x: the FP16 builder flag is gone and networks are always strongly typed: precision comes
+  from the ONNX file (convert it to mixed precision before building), so ``fp16=True`` is an
+  error.
+
+A strongly typed network takes no precision builder flag (TensorRT refuses FP16 / INT8 flags
+and per-layer precisions on it), so ``strongly_typed=True`` with ``fp16=True`` is an error, and
+so is ``strongly_typed`` on 8.x (no such mode) or ``strongly_typed=False`` on 11.x.
 
 Next to every engine ``model.plan`` a ``model.plan.json`` records the TensorRT version and the
 GPU that built it; :func:`load_engine` compares it with the running TensorRT before
@@ -66,16 +77,70 @@ def _shape_text(dims, batch: int) -> str:
     return "x".join(str(batch if d < 0 else d) for d in dims)
 
 
+def typed_precision(onnx_path: str) -> str:
+    """What the file's own types ask for: 'int8' when it has Q/DQ nodes, 'fp16' when it has
+    float16 tensors (initializers, annotated values, constants or casts to float16), else
+    'fp32'."""
+    import onnx
+
+    from gijax.export.precision import FLOAT16
+
+    model = onnx.load(onnx_path, load_external_data=False)
+    g = model.graph
+    if any(n.op_type in ("QuantizeLinear", "DequantizeLinear") for n in g.node):
+        return "int8"
+    values = list(g.input) + list(g.output) + list(g.value_info)
+    if any(t.data_type == FLOAT16 for t in g.initializer) or \
+            any(v.type.tensor_type.elem_type == FLOAT16 for v in values):
+        return "fp16"
+    for n in g.node:
+        for a in n.attribute:
+            if (n.op_type == "Cast" and a.name == "to" and a.i == FLOAT16) or \
+                    (a.name == "value" and a.t.data_type == FLOAT16):
+                return "fp16"
+    return "fp32"
+
+
+def resolve_strongly_typed(version: tuple, fp16: bool, strongly_typed: bool | None,
+                           file_precision: str, label: str = "") -> bool:
+    """Whether the network is built strongly typed: ``strongly_typed`` as asked, or (None) the
+    default: always on 11.x, on 10.x for a file whose types carry its precision (fp16, int8)
+    unless the FP16 builder flag is asked for, never on 8.x. ValueError, in one line, for a
+    contradictory request."""
+    where = f"TensorRT {label or '.'.join(map(str, version))}"
+    if strongly_typed and fp16:
+        raise ValueError("--stronglyTyped and --fp16 contradict each other: a strongly typed "
+                         "network takes its precision from the ONNX file's types and no "
+                         "precision builder flag; drop --fp16 (a --precision fp16 export "
+                         "builds as fp16)")
+    if strongly_typed and version < (10, 0):
+        raise ValueError(f"{where} has no strongly typed mode (TensorRT 10.0 and later); "
+                         f"drop --stronglyTyped (--fp16 lets the builder pick fp16 per layer)")
+    if strongly_typed is False and version >= (11, 0):
+        raise ValueError(f"{where} builds every network strongly typed; drop "
+                         f"--no-stronglyTyped")
+    if strongly_typed is not None:
+        return bool(strongly_typed)
+    if version >= (11, 0):
+        return True
+    return version >= (10, 0) and not fp16 and file_precision in ("fp16", "int8")
+
+
 def trtexec_command(onnx_path: str, plan_path: str, version: tuple, fp16: bool = False,
-                    workspace_mb: int | None = None, max_batch: int = 1) -> str:
-    """The ``trtexec`` command line that builds the same engine on a device."""
+                    workspace_mb: int | None = None, max_batch: int = 1,
+                    strongly_typed: bool | None = None) -> str:
+    """The ``trtexec`` command line that builds the same engine on a device
+    (``strongly_typed`` None: on 11.x only, as :func:`resolve_strongly_typed` for a float32
+    file)."""
+    if strongly_typed is None:
+        strongly_typed = version >= (11, 0)
     cmd = ["trtexec", f"--onnx={onnx_path}", f"--saveEngine={plan_path}"]
     if workspace_mb:
         cmd.append(f"--memPoolSize=workspace:{int(workspace_mb)}" if version >= (8, 4)
                    else f"--workspace={int(workspace_mb)}")
     if fp16 and version < (11, 0):
         cmd.append("--fp16")
-    if version >= (11, 0):
+    if strongly_typed:
         cmd.append("--stronglyTyped")
     dynamic = [(n, d) for n, d in _onnx_inputs(onnx_path) if any(x < 0 for x in d)]
     if dynamic:
@@ -85,11 +150,17 @@ def trtexec_command(onnx_path: str, plan_path: str, version: tuple, fp16: bool =
 
 
 def build_engine(onnx_path: str, plan_path: str, fp16: bool = False,
-                 workspace_mb: int | None = None, max_batch: int = 1, trt=None) -> dict:
-    """Build and write a serialized engine; returns {'plan', 'version', 'trtexec', 'seconds'}.
+                 workspace_mb: int | None = None, max_batch: int = 1, trt=None,
+                 strongly_typed: bool | None = None) -> dict:
+    """Build and write a serialized engine; returns {'plan', 'version', 'trtexec', 'seconds',
+    'strongly_typed', 'file_precision'}.
 
-    ``trt``: the tensorrt module (default: imported; tests inject a stand-in).
+    ``strongly_typed``: build a strongly typed network (precision from the file's types);
+    None: :func:`resolve_strongly_typed`'s default for the file. ``trt``: the tensorrt module
+    (default: imported; tests inject a stand-in).
     """
+    if strongly_typed and fp16:  # contradictory on any version: say so before anything else
+        resolve_strongly_typed((11, 0), fp16, strongly_typed, "fp32")
     trt = import_tensorrt() if trt is None else trt
     version = trt_version(trt)
     if not Path(onnx_path).is_file():
@@ -99,12 +170,15 @@ def build_engine(onnx_path: str, plan_path: str, fp16: bool = False,
                          f"from the ONNX file; convert {onnx_path} to mixed precision (e.g. "
                          f"'polygraphy convert --fp16' on TensorRT <= 10, or an fp16 ONNX "
                          f"conversion) and build without --fp16")
+    file_precision = typed_precision(str(onnx_path))
+    strongly_typed = resolve_strongly_typed(version, fp16, strongly_typed, file_precision,
+                                            str(trt.__version__))
     logger = trt.Logger(trt.Logger.WARNING)
     builder = trt.Builder(logger)
     flags = 0
     if version < (10, 0):
         flags |= 1 << int(trt.NetworkDefinitionCreationFlag.EXPLICIT_BATCH)
-    elif version >= (11, 0):
+    if strongly_typed:
         flags |= 1 << int(trt.NetworkDefinitionCreationFlag.STRONGLY_TYPED)
     network = builder.create_network(flags)
     parser = trt.OnnxParser(network, logger)
@@ -136,11 +210,13 @@ def build_engine(onnx_path: str, plan_path: str, fp16: bool = False,
     seconds = time.perf_counter() - start
     write_bytes_atomic(plan_path, bytes(plan))
     info = {"tensorrt": str(trt.__version__), "gpu": _gpu_name(), "onnx": str(onnx_path),
-            "fp16": bool(fp16)}
+            "fp16": bool(fp16), "strongly_typed": strongly_typed,
+            "file_precision": file_precision}
     write_json_atomic(str(plan_path) + ".json", info)
     return {"plan": str(plan_path), "version": str(trt.__version__), "seconds": seconds,
+            "strongly_typed": strongly_typed, "file_precision": file_precision,
             "trtexec": trtexec_command(str(onnx_path), str(plan_path), version, fp16,
-                                       workspace_mb, max_batch)}
+                                       workspace_mb, max_batch, strongly_typed)}
 
 
 def _gpu_name() -> str:

@@ -14,6 +14,8 @@ FLOPs and bytes (XLA cost analysis) and its memory (XLA memory analysis).
 * :mod:`~gijax.bench.cases.baseline`: the classical RTSS baseline;
 * :mod:`~gijax.bench.cases.training`: one training step;
 * :mod:`~gijax.bench.cases.isolated`: every preset in fresh processes (:mod:`gijax.bench.isolated`);
+* :mod:`~gijax.bench.cases.precision`: onnxruntime on the fp32, fp16 and int8 files, fresh
+  processes;
 * :mod:`~gijax.bench.cases.torch_peer`: gijax against its PyTorch twin (:mod:`gijax.bench.torch_peer`).
 """
 
@@ -26,6 +28,7 @@ from gijax.bench.cases.context import Context
 from gijax.bench.cases.isolated import isolated
 from gijax.bench.cases.network import forward, scaling, stages, sweep
 from gijax.bench.cases.onnx_runtime import onnx_vs_jax
+from gijax.bench.cases.precision import precision
 from gijax.bench.cases.torch_peer import torch_peer
 from gijax.bench.cases.training import train_step
 
@@ -39,6 +42,7 @@ CASES = {
     "train": train_step,
     "scaling": scaling,
     "isolated": isolated,
+    "precision": precision,
     "torch-peer": torch_peer,
 }
 
