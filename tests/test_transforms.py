@@ -1019,6 +1019,11 @@ def _cell_zncc(seed):
     return grey, seen
 
 
+@case(consistency.common_mean_gains, diff=(0,))
+def _common_mean_gains(seed):
+    return (jnp.asarray(np.random.default_rng(seed).uniform(0.1, 0.9, (2, 3, 3)), F64),)
+
+
 @case(consistency.view_dispersion, diff=(0, 1),
       degenerate=[("no camera sees", lambda: (jnp.ones((2, 3, 3), F64), jnp.zeros((2, 3), F64)),
                    False)])

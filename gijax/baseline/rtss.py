@@ -38,6 +38,7 @@ from gijax.candidates.validation import guard_candidates
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig, is_homogeneous, map_cameras
 from gijax.sampling import bilinear_sample
+from gijax.sweep.consistency import common_mean_gains
 
 Array = jax.Array
 
@@ -183,9 +184,8 @@ def _normalize_gain(view_images, view_masks):
     """Per-camera, per-channel gain so every view's valid mean colour equals the common mean."""
     means = [jnp.sum(im * m[..., None], (0, 1)) / jnp.maximum(jnp.sum(m), 1.0)
              for im, m in zip(view_images, view_masks)]
-    target = jnp.mean(jnp.stack(means), 0)
-    return [jnp.clip(im * (target / jnp.maximum(mu, 1e-3)), 0.0, 1.0)
-            for im, mu in zip(view_images, means)]
+    gains = common_mean_gains(jnp.stack(means))
+    return [jnp.clip(im * g, 0.0, 1.0) for im, g in zip(view_images, gains)]
 
 
 def _stack_padded(arrays):

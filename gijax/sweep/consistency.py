@@ -38,3 +38,11 @@ def view_dispersion(samples: Array, weights: Array,
     mean = jnp.sum(samples * weights[..., None], axis=0) / jnp.maximum(total, 1e-6)[..., None]
     diff = safe_sqrt(jnp.sum((samples - mean) ** 2, axis=-1) + eps**2)
     return jnp.sum(diff * weights, axis=0) / jnp.maximum(total, 1e-6), total
+
+
+def common_mean_gains(means: Array) -> Array:
+    """Per-camera mean colours (..., N, C) -> the gains (..., N, C) that scale each camera's
+    channels to the mean over its cameras (axis -2): cameras of another exposure, gain or white
+    balance then compare. Means below 1e-3 (a black camera) count as 1e-3."""
+    target = jnp.mean(means, axis=-2, keepdims=True)
+    return target / jnp.maximum(means, 1e-3)

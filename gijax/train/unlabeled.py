@@ -31,7 +31,7 @@ from gijax.geometry.panorama import Panorama, direction_to_pixel
 from gijax.geometry.panorama_frame import panorama_rays
 from gijax.geometry.rig import Rig
 from gijax.sampling import bilinear_sample
-from gijax.sweep.consistency import view_dispersion
+from gijax.sweep.consistency import common_mean_gains, view_dispersion
 from gijax.train.losses import RELEASE_INV_SCALE, smooth_l1
 
 Array = jax.Array
@@ -49,8 +49,7 @@ def normalize_gain(surrogates: Array, masks: Array) -> Array:
     surrogate images). ``masks`` (B, N, Hs, Ws); clipped to [0, 1]."""
     w = masks.astype(surrogates.dtype)[..., None]
     mean = jnp.sum(surrogates * w, axis=(2, 3)) / jnp.maximum(jnp.sum(w, axis=(2, 3)), 1e-6)
-    target = jnp.mean(mean, axis=1, keepdims=True)                        # (B, 1, 3)
-    gain = target / jnp.maximum(mean, 1e-3)                               # (B, N, 3)
+    gain = common_mean_gains(mean)                                        # (B, N, 3)
     return jnp.clip(surrogates * gain[:, :, None, None, :], 0.0, 1.0)
 
 
