@@ -42,6 +42,20 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
+def persistent_compile_cache(folder):
+    """Generator for a fixture: JAX's persistent compilation cache in ``folder`` with every
+    program cached (the training tests and their subprocesses share one folder, so a training
+    step compiles once), the previous settings restored afterwards."""
+    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+             "jax_persistent_cache_min_entry_size_bytes")
+    old = [getattr(jax.config, n) for n in names]
+    for name, value in zip(names, (str(folder), 0.0, 0)):
+        jax.config.update(name, value)
+    yield
+    for name, value in zip(names, old):
+        jax.config.update(name, value)
+
+
 def _without_optimisations():
     previous = jax.config.read("jax_disable_most_optimizations")
     jax.config.update("jax_disable_most_optimizations", True)

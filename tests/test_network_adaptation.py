@@ -27,18 +27,10 @@ pytestmark = pytest.mark.usefixtures("quick_compiles", "compile_cache")
 def compile_cache():
     """The adaptation runs compile the same training step: the persistent cache (the one the
     training tests share) compiles it once."""
+    from conftest import persistent_compile_cache
     from test_train_faults import CACHE
 
-    old = (jax.config.jax_compilation_cache_dir,
-           jax.config.jax_persistent_cache_min_compile_time_secs,
-           jax.config.jax_persistent_cache_min_entry_size_bytes)
-    jax.config.update("jax_compilation_cache_dir", str(CACHE))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    yield
-    jax.config.update("jax_compilation_cache_dir", old[0])
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", old[1])
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", old[2])
+    yield from persistent_compile_cache(CACHE)
 
 # The tiny network of tests/test_model.py (TINY_VAR) on the paper's rig at 1/16 (64 px).
 TINY = ModelConfig(

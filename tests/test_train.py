@@ -22,16 +22,9 @@ TINY, CANDIDATES, tiny_arrays, tiny_rig = (_NS[k] for k in ("TINY", "CANDIDATES"
 @pytest.fixture(scope="module", autouse=True)
 def compile_cache():
     """Share compiled programs with the subprocess tests (same cache folder)."""
-    cache = str(CACHE)
-    old = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs,
-           jax.config.jax_persistent_cache_min_entry_size_bytes)
-    jax.config.update("jax_compilation_cache_dir", cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    yield
-    jax.config.update("jax_compilation_cache_dir", old[0])
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", old[1])
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", old[2])
+    from conftest import persistent_compile_cache
+
+    yield from persistent_compile_cache(CACHE)
 
 
 def _config(**kw):
