@@ -42,7 +42,6 @@ missing):
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 import sys
@@ -56,7 +55,8 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.arguments import add_common_arguments, resolve_paths  # noqa: E402
-from experiments.evaluation import cached_evaluation, net_predictor, rtss_predictor  # noqa: E402
+from experiments.evaluation import (cached_evaluation, net_predictor, rtss_predictor,  # noqa: E402
+                                    weights_id)
 from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, save_figure, save_png,  # noqa: E402
                                    save_table)
@@ -334,26 +334,13 @@ def initial_weights(run: Path, recipe: Recipe) -> Optional[dict]:
     record = read_json(path)
     if record is None or not (run / "checkpoints").is_dir():
         source = resolve_model_path(recipe.init_from)
-        record = {"model": recipe.init_from, "weights_sha256_12": _weights_id(source),
+        record = {"model": recipe.init_from, "weights_sha256_12": weights_id(source),
                   "git_revision": revision()}
         write_json(path, record)
     return record
 
 
 # --------------------------------------------------------------------------- evaluation
-
-def _weights_id(path: Path) -> str:
-    """A short hash of a model's weights (a bundle's ``weights.npz``, a run's best checkpoint
-    folder), so a cached evaluation follows the weights, not the path."""
-    path = Path(path)
-    files = [path / "weights.npz"] if (path / "weights.npz").is_file() else sorted(
-        f for f in (path / "best").rglob("*") if f.is_file())
-    h = hashlib.sha256()
-    for f in files:
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:12]
-
 
 def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
              lists=("train", "spacing")) -> tuple[list, dict]:
@@ -373,7 +360,7 @@ def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
             for lst in lists:
                 log(f"  {label}, {lst} list, on {test}")
                 res = cached_evaluation(
-                    work, {"method": label, "weights": _weights_id(path), "data": test,
+                    work, {"method": label, "weights": weights_id(path), "data": test,
                            "samples": n, "candidates": lst},
                     lambda rig, p=path, s=lst: net_predictor(Path(p), rig, s), data)
                 rows.append(_row(test, label, "learned", lst, res))

@@ -100,6 +100,19 @@ class Predictor:
     peak_mb: Optional[float]
 
 
+def weights_id(path: Path) -> str:
+    """A short hash of a model's weights (a bundle's ``weights.npz``, a run's best checkpoint
+    folder), so a cached evaluation follows the weights, not the path."""
+    path = Path(path)
+    files = [path / "weights.npz"] if (path / "weights.npz").is_file() else sorted(
+        f for f in (path / "best").rglob("*") if f.is_file())
+    h = hashlib.sha256()
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
     """A trained network (a run folder's best validated checkpoint, or a bundle) on raw
     fisheye images of ``rig``.

@@ -550,3 +550,33 @@ def test_scales_are_consistent():
                 assert mc.image_scale == scale.image_scale
     assert scales.SCALES["cpu"].models == scales.MODELS
     assert scales.SCALES["smoke"].steps < 10
+
+
+def test_network_adaptation_commands_parse_and_claims_compare_scene_by_scene(tmp_path):
+    """The recorded ``gijax adapt`` command is one gijax's own parser accepts with the weights
+    the script passes; the claims pair scenes and say whether the mean fell."""
+    import shlex
+
+    from experiments import network_adaptation as na
+    from gijax.cli import build_parser
+
+    cfg = na.SCALES["cpu"]
+    for name, (_, weights) in na.VARIANTS.items():
+        weights = {**weights, "teacher": weights["teacher"] if weights["teacher"] is not None
+                   else cfg["teacher"]}
+        argv = na.adapt_argv(tmp_path / "frames", tmp_path / "out", cfg, weights,
+                             tmp_path / "test")
+        args = build_parser().parse_args(shlex.split(na.gijax_command(argv))[1:])
+        assert (args.ckpt, args.steps, args.lr, args.batch) == (na.MODEL, cfg["steps"],
+                                                                cfg["lr"], cfg["batch"])
+        assert (args.photometric, args.smoothness, args.teacher) == (
+            weights["photometric"], weights["smoothness"], weights["teacher"])
+    rows = {"before": {"mae": 0.05, "mae_per_sample": [0.04, 0.06, None]},
+            na.TEACHER: {"mae": 0.03, "mae_per_sample": [0.03, 0.03, 0.02]},
+            "photometric": {"mae": 0.045, "mae_per_sample": [0.035, 0.055, 0.01]},
+            "teacher": {"mae": 0.04, "mae_per_sample": [0.03, 0.05, 0.01]}}
+    out = {t: (p, h) for t, p, h in na.comparisons(rows)}
+    p, holds = out["photometric vs before"]
+    assert holds and p["scenes"] == 2 and p["lower"] == 2 and abs(p["mean"] + 0.005) < 1e-12
+    p, holds = out[f"teacher vs {na.TEACHER}"]
+    assert not holds and p["scenes"] == 3 and abs(p["mean"] - 0.01 / 3) < 1e-12

@@ -23,6 +23,9 @@ from gijax.io.text import one_line, read_text
 from gijax.nn.presets import ModelConfig, get_preset
 
 CONFIG_FILE = "config.json"
+# A run folder's log (one JSON record per line), written by gijax.train.logbook and carried
+# by resume packs.
+METRICS_FILE = "metrics.jsonl"
 
 
 def model_config_to_dict(config: ModelConfig) -> dict:

@@ -34,9 +34,9 @@ import jax
 import numpy as np
 
 from gijax.io.paths import atomic_path, write_text_atomic
+from gijax.store.configs import METRICS_FILE
 
 PACK_FILE = "pack.json"
-METRICS_FILE = "metrics.jsonl"
 FORMAT = "gijax-resume-pack"
 VERSION = 1
 

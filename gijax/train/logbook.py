@@ -17,8 +17,8 @@ import numpy as np
 
 from gijax.evaluate.labels import usable_label
 from gijax.io.paths import write_png_atomic, write_text_atomic
+from gijax.store.configs import METRICS_FILE
 
-METRICS_FILE = "metrics.jsonl"
 # The learned candidate list of a run with TrainConfig.learn_candidates (a --candidates FILE).
 LEARNED_FILE = "candidates.json"
 
