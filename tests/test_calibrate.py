@@ -327,3 +327,27 @@ def test_a_dataset_folder_reads_as_one_frame_per_sample(tmp_path):
     np.testing.assert_array_equal(got_masks, masks)
     one, _, _ = read_frames([tmp_path / "d"], rig, max_frames=1)
     assert one.shape[0] == 1
+
+
+def test_default_working_scale_and_implausible_moves():
+    """The default working size is REFINE_WIDTH wide without enlarging (and --help says so);
+    a camera that moved more than half its distance to the nearest camera, or more than 5
+    degrees, is named, one that moved less is not."""
+    from gijax.cli import build_parser
+
+    assert ref.refine_scale(1024) == 0.25 and ref.refine_scale(ref.REFINE_WIDTH) == 1.0
+    assert ref.refine_scale(128) == 1.0 and ref.refine_scale(1280) == ref.REFINE_WIDTH / 1280
+    parser = build_parser()
+    rig_action = next(a for a in parser._subparsers._group_actions[0].choices["rig"]
+                      ._subparsers._group_actions)
+    help_text = rig_action.choices["refine"].format_help()
+    assert f"{ref.REFINE_WIDTH} px wide" in " ".join(help_text.split())
+    cam = make_camera("equidistant", {"fx": 80.0, "fy": 80.0, "cx": 63.5, "cy": 63.5}, 128, 128)
+    # Three cameras on a line, 70 mm apart: cam2's nearest camera is 70 mm away.
+    rig = make_rig([cam] * 3, np.stack([np.eye(3)] * 3), [[0, 0, 0], [0.07, 0, 0], [0.14, 0, 0]])
+    moved = {"rotation_deg": [0.0, 6.0, 0.3], "translation_mm": [0.0, 10.0, 36.0]}
+    lines = ref.implausible_moves(rig, moved)
+    assert len(lines) == 2 and lines[0].startswith(rig.names[1] + " moved 6.00 deg")
+    assert lines[1].startswith(rig.names[2]) and "0.5x its 70 mm" in lines[1]
+    assert ref.implausible_moves(rig, {"rotation_deg": [0, 4.9, 0.3],
+                                       "translation_mm": [0, 34.9, 34.9]}) == []

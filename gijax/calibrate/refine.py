@@ -577,6 +577,41 @@ def _rotation_angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(cos))
 
 
+# The working width of a refinement (pixels): the bundled model's and the cpu-scale experiments'
+# 256 px images (1024 px cameras at 0.25). Refining a 256 px rig at a quarter of its size (64 px,
+# under a degree a pixel for the narrow rings that need the correction) let cameras wander by
+# several times their spacing on the documented example rig.
+REFINE_WIDTH = 256
+
+
+def refine_scale(width: int) -> float:
+    """The default working scale of a ``width`` px camera: the factor that makes it
+    :data:`REFINE_WIDTH` wide, never enlarging (0.25 for 1024 px, 1 for 256 px or less)."""
+    return min(1.0, REFINE_WIDTH / float(width))
+
+
+def implausible_moves(rig: Rig, moved: dict, spacing_share: float = 0.5,
+                      max_deg: float = 5.0) -> list:
+    """One line per camera whose refined pose moved more than ``spacing_share`` of its distance
+    to the nearest other camera or more than ``max_deg`` degrees (``moved``: the
+    ``rotation_deg`` / ``translation_mm`` lists of :func:`pose_change`). A calibration that
+    is off by that much is not what refinement corrects; far more often the frames do not
+    constrain that camera (little overlap or texture at the working size)."""
+    trans = np.asarray(rig.translations, np.float64)
+    lines = []
+    for i, name in enumerate(rig.names):
+        others = np.delete(trans, i, axis=0)
+        near_mm = 1000.0 * float(np.min(np.linalg.norm(others - trans[i], axis=-1))) \
+            if len(others) else math.inf
+        mm, deg = float(moved["translation_mm"][i]), float(moved["rotation_deg"][i])
+        if mm > spacing_share * near_mm or deg > max_deg:
+            lines.append(f"{name} moved {deg:.2f} deg and {mm:.1f} mm ({mm / near_mm:.1f}x its "
+                         f"{near_mm:.0f} mm to the nearest camera): the frames likely do not "
+                         f"constrain it; check it before use (more frames, more texture, a "
+                         f"larger --scale)")
+    return lines
+
+
 def pose_change(before: Rig, after: Rig) -> dict:
     """Per camera how far ``after`` moved from ``before`` (NumPy report): ``rotation_deg`` (the
     angle of R_before^T R_after) and ``translation_mm`` (camera centre distance)."""

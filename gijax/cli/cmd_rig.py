@@ -88,6 +88,7 @@ def _refine(args) -> int:
     from gijax.calibrate.frames import read_frames
     from gijax.calibrate.refine import (GAUGE, RefineConfig, refine_panorama, refine_rig,
                                         transfer_refinement)
+    from gijax.calibrate.refine import implausible_moves, refine_scale
     from gijax.data.images import fit_images
     from gijax.io.masks import import_rig
     from gijax.io.paths import check_output_file, write_text_atomic
@@ -97,12 +98,13 @@ def _refine(args) -> int:
     for option in ("plot", "json"):
         if getattr(args, option):
             check_output_file(getattr(args, option), f"--{option}")
-    if not 0 < args.scale <= 1:
+    if args.scale is not None and not 0 < args.scale <= 1:
         raise ValueError(f"--scale must be in (0, 1]; found {args.scale}")
     rig = import_rig(args.rig)
     images, masks, labels = read_frames(args.frames, rig, args.max_frames)
     cam = rig.cameras[0]
-    size = (max(8, round(cam.height * args.scale)), max(8, round(cam.width * args.scale)))
+    scale = refine_scale(cam.width) if args.scale is None else args.scale
+    size = (max(8, round(cam.height * scale)), max(8, round(cam.width * scale)))
     fitted = [fit_images(rig, im, m, size) for im, m in zip(images, masks)]
     work = fitted[0][0]
     work_images = np.stack([f[1] for f in fitted])
@@ -126,6 +128,8 @@ def _refine(args) -> int:
     for i, name in enumerate(rig.names):
         print(f"  {name}: {moved['rotation_deg'][i]:.4f} deg, {moved['translation_mm'][i]:.2f} mm")
     print(f"photometric loss: {result.loss_before:.5f} before, {result.loss_after:.5f} after")
+    for line in implausible_moves(rig, moved):
+        print(f"warning: {line}")
     print(f"wrote {out}")
     if args.plot:
         from gijax.calibrate.plots import plot_loss_curve
@@ -133,7 +137,7 @@ def _refine(args) -> int:
         print(f"wrote {plot_loss_curve(result.history, args.plot, f'refining {args.rig}')}")
     if args.json:
         doc = {"rig": str(args.rig), "out": str(out), "frames": labels, "steps": args.steps,
-               "scale": args.scale, "intrinsics": bool(args.intrinsics), "gauge": GAUGE,
+               "scale": scale, "intrinsics": bool(args.intrinsics), "gauge": GAUGE,
                "loss_before": result.loss_before, "loss_after": result.loss_after,
                "cameras": [{"name": n, "rotation_deg": moved["rotation_deg"][i],
                             "translation_mm": moved["translation_mm"][i]}
@@ -221,9 +225,11 @@ def register(subparsers) -> None:
                           "and principal point")
     ref.add_argument("--steps", type=int, default=300,
                      help="Adam steps, split over three blur levels (coarse to fine)")
-    ref.add_argument("--scale", type=float, default=0.25,
+    ref.add_argument("--scale", type=float, default=None,
                      help="working image scale: images and lenses are resized by this factor "
-                          "before refining (the refined poses hold at any size)")
+                          "before refining (the refined poses hold at any size); default: the "
+                          "factor that makes the images 256 px wide, never enlarging "
+                          "(0.25 for 1024 px cameras, 1 for 256 px ones)")
     ref.add_argument("--start-distance", type=float, metavar="METRES",
                      help="start every panorama ray at this distance instead of at the classical "
                           "baseline's estimate (faster; for scenes the baseline handles badly)")
