@@ -36,9 +36,13 @@ def _config(**kw):
     return TrainConfig(**base)
 
 
+@pytest.mark.usefixtures("quick_compiles_here")
 def test_tiny_network_overfits_two_samples(tmp_path):
     """Smooth-L1 E8 network (tiny sizes), 2 samples, 60 Adam steps at lr 3e-3: the MAE on the
-    training samples drops from about 0.21 1/m (untrained) below 0.04 1/m."""
+    training samples drops from about 0.21 1/m (untrained) below 0.04 1/m. A plain step (no
+    gradient accumulation), compiled without XLA's optimisation passes as the other training
+    tests here: they only round differently, which the margins of the drop do not feel, and
+    they dominate the compile time of the step."""
     from gijax.train.sources import array_stream_factory
     from gijax.train.trainer import Trainer
 
