@@ -220,7 +220,8 @@ def main(argv=None) -> int:
                                      epilog="\n".join(__doc__.splitlines()[2:]))
     parser.add_argument("--scale", choices=list(SCALES), default="smoke",
                         help="smoke: pipeline check (a few minutes); cpu: the reported figures "
-                             "(about 20 minutes on 2 cores; resumable)")
+                             "(82 minutes on a busy 2-core machine; resumable, and a rerun reuses "
+                             "the data, runs and evaluations)")
     parser.add_argument("--work", default=None,
                         help="work folder for data, adaptation runs and cached evaluations "
                              "(default experiments/out/work_<scale>)")
