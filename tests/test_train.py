@@ -507,6 +507,7 @@ def test_a_run_whose_folder_is_lost_resumes_from_its_pack_with_the_same_losses(t
     whole = Trainer(_config(steps=4, ckpt_every=2), tmp_path / "whole", tiny_rig(), stream, None,
                     progress=False)
     whole.fit()
+    final_params = [np.asarray(x) for x in jax.tree_util.tree_leaves(whole.local_variables()[0])]
     whole.close()
     expected = {r["step"]: r["loss"] for r in whole.history if "loss" in r}
 
@@ -529,6 +530,22 @@ def test_a_run_whose_folder_is_lost_resumes_from_its_pack_with_the_same_losses(t
     assert [r["step"] for r in logged if "loss" in r] == [1, 2, 3, 4]
     assert [r["loss"] for r in logged if "loss" in r] == [expected[s] for s in (1, 2, 3, 4)]
     assert read_pack(pack).step == 4 and len(list(pack.glob("state-*.npz"))) == 1
+
+    # A finished pack restored into an empty folder trains no step, and the folder still
+    # holds its weights: the same parameters as the uninterrupted run's, ready to predict.
+    from flax import nnx
+
+    from gijax.store.runs import load_for_inference
+
+    done = Trainer(cfg, tmp_path / "run4", tiny_rig(), stream, None, progress=False)
+    done.fit()
+    done.close()
+    assert not [r for r in done.history if "loss" in r and r["step"] > 4]
+    model, _, _ = load_for_inference(tmp_path / "run4", "latest")
+    got_params = jax.tree_util.tree_leaves(nnx.state(model, nnx.Param))
+    assert len(got_params) == len(final_params)
+    for a, b in zip(got_params, final_params):
+        np.testing.assert_array_equal(np.asarray(a), b)
 
     # A damaged state file: refused naming it, before any run folder is made.
     state_file = next(pack.glob("state-*.npz"))

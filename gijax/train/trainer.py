@@ -173,6 +173,14 @@ class Trainer:
         stream = self._stream
         step = self.start_step
         self.log.open(step, total, self.invocation)
+        if self._unsaved_pack_step is not None:
+            # Restored from a pack into a folder without that step: checkpoint it first, so
+            # the folder holds weights even when no step is left to train (a finished pack
+            # restored on a new machine).
+            if cfg.learn_candidates:
+                self._sync_candidates()
+            self.store.save(step, self.state, self._meta(step, self.stream_state))
+            self._unsaved_pack_step = None
         n_last = 0
         # The loss of a step is read once the next step is dispatched, so that the device
         # computes while the host places the next batch; it is read at once before a
@@ -265,6 +273,7 @@ class Trainer:
         ahead of the newest checkpoint, else that checkpoint, else a fresh start (from
         ``config.init_from`` when given)."""
         abstract = S.abstract_like(state, S.replicated(self.mesh))
+        self._unsaved_pack_step = None
         check = lambda meta: R.check_checkpoint_meta(  # noqa: E731
             meta, self.run_dir, self.config, self.mc)
         restored = self.store.restore_latest(abstract, check)
@@ -275,6 +284,7 @@ class Trainer:
 
             self.state = S.place_state(restore_state(pack, abstract), self.mesh)
             self.start_step, self.stream_state = pack.step, pack.meta.get("stream")
+            self._unsaved_pack_step = pack.step
             if self.is_main:
                 write_text_atomic(self.run_dir / METRICS_FILE, "".join(pack.metrics))
         elif restored is None:
