@@ -54,7 +54,7 @@ from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_co
 from gijax.nn.refine import GuidedRefinement, colour_guide
 from gijax.sweep.grids import (SweepGrids, cost_panorama, match_grey, sweep_colours,
                                sweep_features, sweep_grids)
-from gijax.sweep.matching import cell_zncc
+from gijax.sweep.matching import cell_zncc_batch_last
 
 Array = jax.Array
 
@@ -208,16 +208,17 @@ class OmniStereoNet(nnx.Module):
 
     def matching(self, surrogates: Array, masks: Array, grids: SweepGrids) -> Array:
         """The matching-cost channel (B, D, h, w, 1): the cameras' agreement per candidate and
-        cost cell (:func:`gijax.sweep.matching.cell_zncc` of the grey levels at the match
-        grids). No weights: a cue computed from the images, not learned."""
+        cost cell (:func:`gijax.sweep.matching.cell_zncc_batch_last` of the grey levels at the
+        match grids). No weights: a cue computed from the images, not learned."""
         cfg = self.config
         if cfg.matching_cost == "none":
             raise ValueError(f"model {cfg.name!r} has no matching cost")
         if grids.match_px is None:
             raise ValueError(f"model {cfg.name!r} has a matching cost and needs the match "
                              f"grids in its sweep grids (gijax.model.model_grids)")
-        grey, seen = match_grey(surrogates, masks, grids, cfg.sweep_boundary)
-        return cell_zncc(grey, seen, cfg.matching_samples)[..., None]
+        grey, seen = match_grey(surrogates, masks, grids, cfg.sweep_boundary, batch_last=True)
+        ncc = cell_zncc_batch_last(grey, seen, cfg.matching_samples)    # (D, h, w, B)
+        return jnp.moveaxis(ncc, -1, 0)[..., None]
 
     def build_cost_volume(self, sampled: Array, valid: Array,
                           matching: Array | None = None) -> Array:

@@ -207,19 +207,34 @@ def sweep_colours(surrogates: Array, masks: Array, grids: SweepGrids,
 
 
 def match_grey(surrogates: Array, masks: Array, grids: SweepGrids,
-               boundary: str = "zeros") -> tuple[Array, Array]:
+               boundary: str = "zeros", batch_last: bool = False) -> tuple[Array, Array]:
     """Surrogate images (B, N, Hs, Ws, 3) and masks (B, N, Hs, Ws) sampled at the match grids:
     grey levels (the mean of the three channels) (B, N, D, k h, k w) and whether each camera
     sees each point (B, N, D, k h, k w), in the images' dtype (match point valid and sampled
     mask > :data:`MASK_THRESHOLD`). The grey level is taken before sampling (bilinear sampling
-    is linear), so one gather moves two channels, not four."""
+    is linear), so one gather moves two values a sample, not four.
+
+    ``batch_last``: both as (N, D, k h, k w, B), the layout the gather makes (the batch folded
+    into the channels, :func:`_fold_batch`) and :func:`gijax.sweep.matching.cell_zncc_batch_last`
+    reads, so that the samples are never transposed."""
     if grids.match_px is None:
         raise ValueError("these sweep grids have no match grids (made without match samples)")
+    if tuple(masks.shape[2:4]) != tuple(surrogates.shape[2:4]):
+        raise ValueError(f"the matching cost reads masks at the surrogates' size "
+                         f"{tuple(surrogates.shape[2:4])}; found {tuple(masks.shape[2:4])}")
+    b = surrogates.shape[0]
+    dtype = surrogates.dtype
     # A sum, not a mean: ReduceMean's axes are an attribute at the export's opset 17.
     grey = jnp.sum(surrogates, axis=-1, keepdims=True) * (1.0 / surrogates.shape[-1])
-    sampled, seen = _sample_colours(grey, masks, grids.match_px, grids.match_ok, boundary,
-                                    "the matching cost")
-    return sampled[..., 0], seen
+    # Channels: the B grey levels, then the B masks; one gather per camera for both.
+    stacked = jnp.concatenate([_fold_batch(grey), _fold_batch(masks[..., None].astype(dtype))],
+                              axis=-1)
+    sampled = sample_sweep(stacked, grids.match_px.astype(dtype), boundary)
+    values = sampled[..., :b]
+    seen = (grids.match_ok[..., None] & (sampled[..., b:] > MASK_THRESHOLD)).astype(dtype)
+    if batch_last:
+        return values, seen
+    return jnp.moveaxis(values, -1, 0), jnp.moveaxis(seen, -1, 0)
 
 
 def _sample_colours(surrogates: Array, masks: Array, px: Array, ok: Array, boundary: str,

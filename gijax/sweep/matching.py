@@ -35,6 +35,22 @@ Array = jax.Array
 TEXTURE_EPS = 1e-4
 
 
+def small_sum(x: Array, axis: int, keepdims: bool = False) -> Array:
+    """Sum of ``x`` over a short static ``axis`` as a chain of slice additions.
+
+    Why not ``jnp.sum``: jaxlib 0.10's CPU backend hands small reductions to YNNPACK "reduce"
+    fusions, which are slow on the camera axis and on the cell's sample rows; written as
+    additions they fuse elementwise (the ZNCC of a training batch, 8 x 3 cameras x 16
+    candidates x 64 x 256 points: 147 ms as sums, 43 ms so; the values differ only by the
+    order of the additions). Exported, the slices and additions are plain ONNX nodes.
+    """
+    parts = [jax.lax.index_in_dim(x, i, axis, keepdims=keepdims) for i in range(x.shape[axis])]
+    total = parts[0]
+    for part in parts[1:]:
+        total = total + part
+    return total
+
+
 def cell_zncc(grey: Array, seen: Array, samples: int, eps: float = TEXTURE_EPS) -> Array:
     """Mean pairwise ZNCC of the cameras' cell patches (B, D, h, w), in [-1, 1].
 
@@ -48,9 +64,27 @@ def cell_zncc(grey: Array, seen: Array, samples: int, eps: float = TEXTURE_EPS) 
     A camera takes part in a cell when it sees all ``k x k`` of its points. With ``z_i`` camera
     i's centred patch divided by ``sqrt(|z|^2 + eps k^2)``, the mean over the ``V (V - 1) / 2``
     pairs of taking-part cameras is ``(|sum_i z_i|^2 - sum_i |z_i|^2) / (V (V - 1))``; 0 where
-    fewer than two cameras take part.
+    fewer than two cameras take part. The same numbers as :func:`cell_zncc_batch_last` on the
+    batch-last layout, which the network uses.
     """
-    b, n, d, hh, ww = grey.shape
+    if tuple(seen.shape) != tuple(grey.shape):
+        raise ValueError(f"seen must have the grey levels' shape {tuple(grey.shape)}; found "
+                         f"{tuple(seen.shape)}")
+    ncc = cell_zncc_batch_last(jnp.moveaxis(grey, 0, -1), jnp.moveaxis(seen, 0, -1), samples,
+                               eps)
+    return jnp.moveaxis(ncc, -1, 0)
+
+
+def cell_zncc_batch_last(grey: Array, seen: Array, samples: int,
+                         eps: float = TEXTURE_EPS) -> Array:
+    """:func:`cell_zncc` with the batch as the last axis: grey levels and ``seen`` (N, D, k h,
+    k w, B) -> (D, h, w, B).
+
+    The layout the batched sampler of :func:`gijax.sweep.grids.match_grey` (``batch_last``)
+    gathers in, so the network never transposes the sub-cell samples (16 times the size of
+    the result) between the gather and this arithmetic.
+    """
+    n, d, hh, ww, b = grey.shape
     k = samples
     if hh % k or ww % k:
         raise ValueError(f"sub-cell values of {hh} x {ww} points do not split into cells of "
@@ -61,23 +95,26 @@ def cell_zncc(grey: Array, seen: Array, samples: int, eps: float = TEXTURE_EPS) 
     h, w = hh // k, ww // k
     size = k * k
     dtype = grey.dtype
-    # Reshapes only (no copy): cell rows on axis 2 (candidate-major), the cell's own samples on
-    # axes 3 and 5. Few axes on purpose: XLA's CPU backend (jaxlib 0.10) crashes executing some
+
+    def cell_sum(v):          # (N, D h, k, w, k, B) -> (N, D h, w, B)
+        # Within a row of the cell a reduction; the k rows, whole contiguous blocks, added.
+        return small_sum(jnp.sum(v, axis=4), 2)
+
+    # Reshapes only (no copy): cell rows on axis 1 (candidate-major), the cell's own samples on
+    # axes 2 and 4. Few axes on purpose: XLA's CPU backend (jaxlib 0.10) crashes executing some
     # fused reductions of 8-axis arrays.
-    # Sums only, no mean or min: the ONNX export's opset (17) takes ReduceSum's axes as an input
-    # but ReduceMean's and ReduceMin's as attributes, which jax2onnx does not write.
-    x = grey.reshape(b, n, d * h, k, w, k)
-    points = jnp.sum((seen > 0).astype(dtype).reshape(b, n, d * h, k, w, k), axis=(3, 5))
-    part = (points > size - 0.5).astype(dtype)                   # (B, N, D h, w): all seen
-    mean = jnp.sum(x, axis=(3, 5), keepdims=True) * (1.0 / size)
-    centred = x - mean
-    sq = jnp.sum(centred * centred, axis=(3, 5))                 # (B, N, D h, w)
+    x = grey.reshape(n, d * h, k, w, k, b)
+    points = cell_sum((seen > 0).astype(dtype).reshape(n, d * h, k, w, k, b))
+    part = (points > size - 0.5).astype(dtype)                   # (N, D h, w, B): all seen
+    mean = cell_sum(x) * (1.0 / size)
+    centred = x - mean[:, :, None, :, None]
+    sq = cell_sum(centred * centred)                             # (N, D h, w, B)
     scale = jax.lax.rsqrt(sq + eps * size) * part                # 0 for cameras left out
-    unit = centred * scale[:, :, :, None, :, None]
+    unit = centred * scale[:, :, None, :, None]
     # Left-out cameras have unit = 0, so they add nothing to either camera sum.
-    total = jnp.sum(unit, axis=1)                                # (B, D h, k, w, k)
-    own = jnp.sum(sq * scale * scale, axis=1)                    # (B, D h, w)
-    count = jnp.sum(part, axis=1)
+    total = small_sum(unit, 0)                                   # (D h, k, w, k, B)
+    own = small_sum(sq * scale * scale, 0)                       # (D h, w, B)
+    count = small_sum(part, 0)
     pairs2 = count * (count - 1.0)                               # twice the pair count
-    ncc = (jnp.sum(total * total, axis=(2, 4)) - own) / jnp.maximum(pairs2, 1.0)
-    return jnp.where(count >= 2.0, ncc, 0.0).reshape(b, d, h, w)
+    ncc = (small_sum(jnp.sum(total * total, axis=3), 1) - own) / jnp.maximum(pairs2, 1.0)
+    return jnp.where(count >= 2.0, ncc, 0.0).reshape(d, h, w, b)
