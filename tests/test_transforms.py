@@ -1021,6 +1021,15 @@ def _cell_zncc(seed):
     return grey, seen
 
 
+@case(matching.cell_zncc_batch_last,
+      call=lambda g, s: matching.cell_zncc_batch_last(g, s, 2), diff=(0,),
+      degenerate=[("flat patches", lambda: (jnp.full((3, 2, 4, 4, 1), 0.5, F64),
+                                            jnp.ones((3, 2, 4, 4, 1), F64)), False)])
+def _cell_zncc_batch_last(seed):
+    grey, seen = _cell_zncc(seed)
+    return jnp.moveaxis(grey, 0, -1), jnp.moveaxis(seen, 0, -1)
+
+
 @case(consistency.common_mean_gains, diff=(0,))
 def _common_mean_gains(seed):
     return (jnp.asarray(np.random.default_rng(seed).uniform(0.1, 0.9, (2, 3, 3)), F64),)

@@ -35,16 +35,16 @@ Array = jax.Array
 TEXTURE_EPS = 1e-4
 
 
-def small_sum(x: Array, axis: int, keepdims: bool = False) -> Array:
+def _small_sum(x: Array, axis: int) -> Array:
     """Sum of ``x`` over a short static ``axis`` as a chain of slice additions.
 
     Why not ``jnp.sum``: jaxlib 0.10's CPU backend hands small reductions to YNNPACK "reduce"
     fusions, which are slow on the camera axis and on the cell's sample rows; written as
     additions they fuse elementwise (the ZNCC of a training batch, 8 x 3 cameras x 16
-    candidates x 64 x 256 points: 147 ms as sums, 43 ms so; the values differ only by the
+    candidates x 64 x 256 points: 147 ms as sums, 48 ms so; the values differ only by the
     order of the additions). Exported, the slices and additions are plain ONNX nodes.
     """
-    parts = [jax.lax.index_in_dim(x, i, axis, keepdims=keepdims) for i in range(x.shape[axis])]
+    parts = [jax.lax.index_in_dim(x, i, axis, keepdims=False) for i in range(x.shape[axis])]
     total = parts[0]
     for part in parts[1:]:
         total = total + part
@@ -98,7 +98,7 @@ def cell_zncc_batch_last(grey: Array, seen: Array, samples: int,
 
     def cell_sum(v):          # (N, D h, k, w, k, B) -> (N, D h, w, B)
         # Within a row of the cell a reduction; the k rows, whole contiguous blocks, added.
-        return small_sum(jnp.sum(v, axis=4), 2)
+        return _small_sum(jnp.sum(v, axis=4), 2)
 
     # Reshapes only (no copy): cell rows on axis 1 (candidate-major), the cell's own samples on
     # axes 2 and 4. Few axes on purpose: XLA's CPU backend (jaxlib 0.10) crashes executing some
@@ -112,9 +112,9 @@ def cell_zncc_batch_last(grey: Array, seen: Array, samples: int,
     scale = jax.lax.rsqrt(sq + eps * size) * part                # 0 for cameras left out
     unit = centred * scale[:, :, None, :, None]
     # Left-out cameras have unit = 0, so they add nothing to either camera sum.
-    total = small_sum(unit, 0)                                   # (D h, k, w, k, B)
-    own = small_sum(sq * scale * scale, 0)                       # (D h, w, B)
-    count = small_sum(part, 0)
+    total = _small_sum(unit, 0)                                   # (D h, k, w, k, B)
+    own = _small_sum(sq * scale * scale, 0)                       # (D h, w, B)
+    count = _small_sum(part, 0)
     pairs2 = count * (count - 1.0)                               # twice the pair count
-    ncc = (small_sum(jnp.sum(total * total, axis=3), 1) - own) / jnp.maximum(pairs2, 1.0)
+    ncc = (_small_sum(jnp.sum(total * total, axis=3), 1) - own) / jnp.maximum(pairs2, 1.0)
     return jnp.where(count >= 2.0, ncc, 0.0).reshape(d, h, w, b)
