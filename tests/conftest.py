@@ -16,22 +16,27 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 
-# The longest test files (summed test seconds on 2 cores with a fresh compile cache, measured),
-# in decreasing order. Under ``--dist loadfile`` (pyproject.toml) files go to the workers in
-# collection order, so handing these out first keeps one worker from starting a long file when
-# the other is nearly done.
-LONGEST_FIRST = ("test_transforms", "test_train", "test_experiments", "test_export",
+# The longest library test files (summed test seconds on 2 cores with a fresh compile cache,
+# measured), in decreasing order. Under ``--dist loadfile`` (pyproject.toml) files go to the
+# workers in collection order, so handing these out first keeps one worker from starting a long
+# file when the other is nearly done.
+LONGEST_FIRST = ("test_transforms", "test_train", "test_export",
                  "test_faults", "test_tutorial", "test_train_parallel", "test_reliability",
                  "test_model", "test_release_parity", "test_augmentations", "test_rtss",
                  "test_network_adaptation", "test_learned_candidates", "test_precision",
                  "test_design", "test_train_faults", "test_nn")
+# The experiments' end-to-end smoke runs come after every library test: they run the library
+# through the experiment scripts, so a library defect is reported by its own test first.
+LAST = ("test_experiments",)
 
 
 def pytest_collection_modifyitems(config, items):
-    """Longest files first (see :data:`LONGEST_FIRST`; the order inside a file is kept), and
-    tests marked ``long`` (extra seeds of the fault probe) run only with GIJAX_LONG_TESTS=1, so
-    the default suite stays within its time budget."""
+    """Longest library files first (see :data:`LONGEST_FIRST`; the order inside a file is
+    kept), the experiments' smoke runs last (:data:`LAST`), and tests marked ``long`` (extra
+    seeds of the fault probe) run only with GIJAX_LONG_TESTS=1, so the default suite stays
+    within its time budget."""
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    rank.update({name: len(LONGEST_FIRST) + 1 + i for i, name in enumerate(LAST)})
 
     def file_rank(item):
         return rank.get(item.path.stem, len(LONGEST_FIRST))
