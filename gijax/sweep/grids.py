@@ -202,8 +202,9 @@ def sweep_colours(surrogates: Array, masks: Array, grids: SweepGrids,
     if grids.guide_px is None:
         raise ValueError("these sweep grids have no guide grids (made without the output "
                          "panorama and the surrogate size)")
-    return _sample_colours(surrogates, masks, grids.guide_px, grids.guide_ok, boundary,
-                           "the guided refinement")
+    colours, seen = _sample_with_seen(surrogates, masks, grids.guide_px, grids.guide_ok,
+                                      boundary, "the guided refinement")
+    return jnp.moveaxis(colours, -2, 0), jnp.moveaxis(seen, -1, 0)
 
 
 def match_grey(surrogates: Array, masks: Array, grids: SweepGrids,
@@ -219,36 +220,30 @@ def match_grey(surrogates: Array, masks: Array, grids: SweepGrids,
     reads, so that the samples are never transposed."""
     if grids.match_px is None:
         raise ValueError("these sweep grids have no match grids (made without match samples)")
-    if tuple(masks.shape[2:4]) != tuple(surrogates.shape[2:4]):
-        raise ValueError(f"the matching cost reads masks at the surrogates' size "
-                         f"{tuple(surrogates.shape[2:4])}; found {tuple(masks.shape[2:4])}")
-    b = surrogates.shape[0]
-    dtype = surrogates.dtype
     # A sum, not a mean: ReduceMean's axes are an attribute at the export's opset 17.
     grey = jnp.sum(surrogates, axis=-1, keepdims=True) * (1.0 / surrogates.shape[-1])
-    # Channels: the B grey levels, then the B masks; one gather per camera for both.
-    stacked = jnp.concatenate([_fold_batch(grey), _fold_batch(masks[..., None].astype(dtype))],
-                              axis=-1)
-    sampled = sample_sweep(stacked, grids.match_px.astype(dtype), boundary)
-    values = sampled[..., :b]
-    seen = (grids.match_ok[..., None] & (sampled[..., b:] > MASK_THRESHOLD)).astype(dtype)
+    values, seen = _sample_with_seen(grey, masks, grids.match_px, grids.match_ok, boundary,
+                                     "the matching cost")
+    values = values[..., 0]
     if batch_last:
         return values, seen
     return jnp.moveaxis(values, -1, 0), jnp.moveaxis(seen, -1, 0)
 
 
-def _sample_colours(surrogates: Array, masks: Array, px: Array, ok: Array, boundary: str,
-                    who: str) -> tuple[Array, Array]:
+def _sample_with_seen(values: Array, masks: Array, px: Array, ok: Array, boundary: str,
+                      who: str) -> tuple[Array, Array]:
     """Images (B, N, Hs, Ws, C) and masks (B, N, Hs, Ws) at surrogate pixels ``px``
-    (N, ..., 2) valid where ``ok``: (B, N, ..., C) values and (B, N, ...) seen, one gather
-    per camera for the whole batch."""
-    if tuple(masks.shape[2:4]) != tuple(surrogates.shape[2:4]):
+    (N, ..., 2) valid where ``ok``: (N, ..., B, C) values and (N, ..., B) seen (valid and
+    sampled mask > :data:`MASK_THRESHOLD`), batch last as the gather makes them: the batch's
+    values and masks are folded into the channels, one gather per camera for all of them."""
+    if tuple(masks.shape[2:4]) != tuple(values.shape[2:4]):
         raise ValueError(f"{who} reads masks at the surrogates' size "
-                         f"{tuple(surrogates.shape[2:4])}; found {tuple(masks.shape[2:4])}")
-    b = surrogates.shape[0]
-    dtype = surrogates.dtype
-    # Colours and masks of all samples in one gather per camera, at the surrogate's size.
-    stacked = _fold_batch(jnp.concatenate([surrogates, masks[..., None].astype(dtype)], -1))
-    sampled = _unfold_batch(sample_sweep(stacked, px.astype(dtype), boundary), b)
-    seen = (ok[None] & (sampled[..., -1] > MASK_THRESHOLD)).astype(dtype)
-    return sampled[..., :-1], seen
+                         f"{tuple(values.shape[2:4])}; found {tuple(masks.shape[2:4])}")
+    b, c = values.shape[0], values.shape[-1]
+    dtype = values.dtype
+    stacked = jnp.concatenate([_fold_batch(values), _fold_batch(masks[..., None].astype(dtype))],
+                              axis=-1)
+    sampled = sample_sweep(stacked, px.astype(dtype), boundary)     # (N, ..., B C + B)
+    out = sampled[..., :b * c].reshape(*sampled.shape[:-1], b, c)
+    seen = (ok[..., None] & (sampled[..., b * c:] > MASK_THRESHOLD)).astype(dtype)
+    return out, seen
