@@ -62,7 +62,8 @@ from experiments.reporting import (fmt, log, publish_section, save_figure, save_
                                    save_table)
 from experiments.scales import DATA_STYLE, SCALES, Scale, model_overrides, preset_name  # noqa: E402
 from experiments.workfolder import (dataset_seeds, ensure_dataset, gijax_command,  # noqa: E402
-                                    metrics_records, rig_file_argument, train_run)
+                                    metrics_records, render_recorded, rig_file_argument,
+                                    train_run)
 from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "bundle_model"
@@ -176,8 +177,6 @@ def _rig_argument(work: Path, base: str) -> str:
 def ensure_mixture_dataset(work: Path, scale: Scale, recipe: Recipe, index: int, role: str,
                            base: str, lens_seed) -> dict:
     from gijax.data.lens_draw import lens_variant_rig
-    from gijax.data.rendered import render_dataset
-    from gijax.geometry.panorama import Panorama
     from gijax.io.rigfile import load_rig
 
     arg = _rig_argument(work, base)
@@ -186,15 +185,8 @@ def ensure_mixture_dataset(work: Path, scale: Scale, recipe: Recipe, index: int,
         rig, lens = lens_variant_rig(lens_seed, rig, "random")
     out = work / "data" / role
     seed = MIX_SEED + index
-    h, w = scale.pano_hw
-    argv = ["render", "--rig", arg, "--samples", recipe.scenes, "--out", out, "--seed", seed,
-            "--scale", scale.image_scale, "--pano", f"{w}x{h}", "--style", DATA_STYLE]
-    if lens_seed is not None:
-        argv += ["--lens", "random", "--lens-seed", lens_seed]
-    t0 = time.perf_counter()
-    render_dataset(rig, out, recipe.scenes, seed=seed, image_scale=scale.image_scale,
-                   pano=Panorama.hemisphere(h, w), style=DATA_STYLE, progress=scale.progress,
-                   log=log)
+    made = render_recorded(rig, arg, out, recipe.scenes, seed, scale.image_scale, scale.pano_hw,
+                           lens_seed=lens_seed, progress=scale.progress)
     from gijax.store.envelope import rig_spacing
 
     fovs = [round(math.degrees(float(c.fov)), 1) for c in rig.cameras]
@@ -202,8 +194,7 @@ def ensure_mixture_dataset(work: Path, scale: Scale, recipe: Recipe, index: int,
             "models": [c.MODEL for c in rig.cameras],
             "spacing_m": [round(x, 4) for x in rig_spacing(rig)],
             "cameras": rig.num_cameras, "path": str(out), "samples": recipe.scenes,
-            "seed": seed, "style": DATA_STYLE, "command": gijax_command(argv),
-            "seconds": time.perf_counter() - t0}
+            "seed": seed, "style": DATA_STYLE, **made}
 
 
 def prepare(work: Path, scale: Scale, recipe: Recipe) -> list:

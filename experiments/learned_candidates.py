@@ -59,7 +59,7 @@ from experiments.reporting import (fmt, log, read_json, save_figure, save_png, s
                                    publish_section, write_json)  # noqa: E402
 from experiments.scales import DATA_STYLE, TEST_RIGS, Scale, preset_name  # noqa: E402
 from experiments.workfolder import (check_held_out, gijax_command, dataset_seeds,  # noqa: E402
-                                    ensure_trained, render_argv, rig_file_argument,
+                                    ensure_trained, render_recorded, rig_file_argument,
                                     style_counts)
 from experiments import same_layout as S  # noqa: E402
 from gijax.bench.report import markdown_grid  # noqa: E402
@@ -138,22 +138,16 @@ def rig_argument(work: Path, rig: str) -> str:
 def ensure_extra_dataset(work: Path, scale: Scale, role: str, samples: int) -> dict:
     """Render (or resume, or reuse) the ring's test scenes or a rig's adaptation scenes
     (``adapt-<rig>``), each from its own dataset seed (:data:`SEEDS`); returns its record."""
-    from gijax.data.rendered import render_dataset
-    from gijax.geometry.panorama import Panorama
     from gijax.io.rigfile import load_rig
 
     rig = role.removeprefix("adapt-")
     arg = rig_argument(work, rig)
     out = work / "data" / role
     seed = SEEDS[role]
-    t0 = time.perf_counter()
-    render_dataset(load_rig(arg), out, samples, seed=seed, image_scale=scale.image_scale,
-                   pano=Panorama.hemisphere(*scale.pano_hw), style=DATA_STYLE,
-                   progress=scale.progress, log=log)
-    command = gijax_command(render_argv(scale, arg, samples, seed, out))
+    made = render_recorded(load_rig(arg), arg, out, samples, seed, scale.image_scale,
+                           scale.pano_hw, progress=scale.progress)
     return {"role": role, "rig": rig, "path": str(out), "samples": samples, "seed": seed,
-            "style": DATA_STYLE, "command": command,
-            "seconds": time.perf_counter() - t0}
+            "style": DATA_STYLE, **made}
 
 
 def check_adaptation_separate(work: Path, adapt_roles, others) -> dict:

@@ -48,7 +48,7 @@ from experiments.provenance import command_line, revision  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, save_figure, save_png,  # noqa: E402
                                    write_json, write_text)
 from experiments.workfolder import (dataset_seeds, gijax_command, metrics_records,  # noqa: E402
-                                    rig_file_argument)
+                                    render_recorded, rig_file_argument)
 from gijax.bench.machine import machine_info  # noqa: E402
 from gijax.bench.report import markdown_grid  # noqa: E402
 
@@ -80,21 +80,13 @@ VARIANTS = {
 
 def ensure_data(work: Path, cfg: dict, role: str) -> dict:
     """Render (or resume, or reuse) the ring's ``role`` dataset ('frames' or 'test')."""
-    from gijax.data.rendered import render_dataset
-    from gijax.geometry.panorama import Panorama
-
     out = work / "data" / f"{RING}-{role}-{cfg['image_scale']:g}"
     samples = cfg[role]
     rig_arg = rig_file_argument(work, RING, ring_rig)
-    t0 = time.perf_counter()
-    render_dataset(ring_rig(), out, samples, seed=SEEDS[role], image_scale=cfg["image_scale"],
-                   pano=Panorama.hemisphere(*PANO_HW), style=STYLE, progress=True, log=log)
-    h, w = PANO_HW
-    argv = ["render", "--rig", rig_arg, "--samples", samples, "--out", out, "--seed",
-            SEEDS[role], "--scale", cfg["image_scale"], "--pano", f"{w}x{h}", "--style", STYLE]
+    made = render_recorded(ring_rig(), rig_arg, out, samples, SEEDS[role], cfg["image_scale"],
+                           PANO_HW, style=STYLE)
     return {"role": role, "rig": RING, "path": str(out), "samples": samples,
-            "seed": SEEDS[role], "command": gijax_command(argv),
-            "seconds": time.perf_counter() - t0}
+            "seed": SEEDS[role], **made}
 
 
 def adapt_argv(frames: Path, out: Path, cfg: dict, weights: dict, val: Path) -> list:

@@ -40,11 +40,35 @@ def rig_file_argument(work: Path, name: str, make_rig) -> str:
     return str(path)
 
 
-def render_argv(scale: Scale, rig: str, samples: int, seed: int, out: Path) -> list:
-    """The ``gijax render`` command equivalent to :func:`ensure_dataset`'s call."""
-    h, w = scale.pano_hw
-    return ["render", "--rig", rig, "--samples", samples, "--out", out, "--seed", seed,
-            "--scale", scale.image_scale, "--pano", f"{w}x{h}", "--style", DATA_STYLE]
+def render_argv(rig: str, samples: int, seed: int, out: Path, image_scale: float,
+                pano_hw: tuple, style: str = DATA_STYLE,
+                lens_seed: Optional[int] = None) -> list:
+    """The ``gijax render`` command of a dataset: ``rig`` as ``--rig`` takes it (a built-in
+    name or a rig file), ``pano_hw`` the panorama's (height, width), ``lens_seed`` a drawn lens
+    (``--lens random``)."""
+    h, w = pano_hw
+    argv = ["render", "--rig", rig, "--samples", samples, "--out", out, "--seed", seed,
+            "--scale", image_scale, "--pano", f"{w}x{h}", "--style", style]
+    if lens_seed is not None:
+        argv += ["--lens", "random", "--lens-seed", lens_seed]
+    return argv
+
+
+def render_recorded(rig, rig_arg: str, out: Path, samples: int, seed: int, image_scale: float,
+                    pano_hw: tuple, style: str = DATA_STYLE, lens_seed: Optional[int] = None,
+                    progress: bool = True) -> dict:
+    """Render (or resume, or reuse) a dataset by calling the library ``gijax render`` is made
+    of, and name the command that does the same: ``rig`` is the Rig rendered (with a drawn
+    lens already applied), ``rig_arg`` and ``lens_seed`` what the command says for it.
+    Returns ``{"command": ..., "seconds": ...}`` (wall seconds, 0-ish when reused)."""
+    from gijax.data.rendered import render_dataset
+    from gijax.geometry.panorama import Panorama
+
+    t0 = time.perf_counter()
+    render_dataset(rig, out, samples, seed=seed, image_scale=image_scale,
+                   pano=Panorama.hemisphere(*pano_hw), style=style, progress=progress, log=log)
+    argv = render_argv(rig_arg, samples, seed, out, image_scale, pano_hw, style, lens_seed)
+    return {"command": gijax_command(argv), "seconds": time.perf_counter() - t0}
 
 
 def ensure_dataset(work: Path, scale: Scale, role: str) -> dict:
@@ -52,23 +76,17 @@ def ensure_dataset(work: Path, scale: Scale, role: str) -> dict:
 
     ``role`` is 'train', 'val' or a test rig name.
     """
-    from gijax.data.rendered import render_dataset
     from gijax.geometry.layouts import builtin_rig
-    from gijax.geometry.panorama import Panorama
 
     rig = "paper-train" if role in ("train", "val") else role
     samples = {"train": scale.train_samples, "val": scale.val_samples}.get(role)
     if samples is None:
         samples = scale.test_samples[role]
     out = work / "data" / role
-    t0 = time.perf_counter()
-    render_dataset(builtin_rig(rig), out, samples, seed=DATA_SEEDS[role],
-                   image_scale=scale.image_scale, pano=Panorama.hemisphere(*scale.pano_hw),
-                   style=DATA_STYLE, progress=scale.progress, log=log)
+    made = render_recorded(builtin_rig(rig), rig, out, samples, DATA_SEEDS[role],
+                           scale.image_scale, scale.pano_hw, progress=scale.progress)
     return {"role": role, "rig": rig, "path": str(out), "samples": samples,
-            "seed": DATA_SEEDS[role], "style": DATA_STYLE,
-            "command": gijax_command(render_argv(scale, rig, samples, DATA_SEEDS[role], out)),
-            "seconds": time.perf_counter() - t0}
+            "seed": DATA_SEEDS[role], "style": DATA_STYLE, **made}
 
 
 def dataset_seeds(path: Path) -> list:
