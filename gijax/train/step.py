@@ -232,6 +232,23 @@ def jit_train_step(step: Callable, mesh: Mesh) -> Callable:
                    donate_argnums=(0,))
 
 
+# How long the processes of a run wait for each other at a meeting point. Gloo gives up on its
+# first collective after 30 s, and processes that import, build and compile at different
+# speeds on a loaded machine drift further apart than that before their first collective.
+MEETING_TIMEOUT_S = 600
+
+
+def meet_all_processes(name: str) -> None:
+    """Every process of a multi-process run waits here until all have arrived (the
+    coordination service's barrier, :data:`MEETING_TIMEOUT_S`); a no-op in one process.
+    Called before a run's first collective, so that the collective starts in step."""
+    if jax.process_count() == 1:
+        return
+    from orbax.checkpoint.multihost import get_barrier_sync_fn
+
+    get_barrier_sync_fn()(key=f"gijax-{name}", timeout_ms=MEETING_TIMEOUT_S * 1000)
+
+
 def place_state(state: Any, mesh: Mesh) -> Any:
     """Replicate a host/single-device state over the mesh."""
     rep = replicated(mesh)

@@ -134,6 +134,9 @@ class Trainer:
             logits0 = (logits_from_candidates(jnp.asarray(self.candidates, jnp.float32))
                        if config.learn_candidates else None)
             state = S.init_state(params, rest, self.tx, logits0, self.tx_cand)
+            # The checkpoint store's creation is the first collective (orbax syncs the
+            # processes through gloo).
+            S.meet_all_processes("checkpoint-store")
             self.store = CheckpointStore(self.run_dir, config.keep,
                                          config.best_metric if config.keep_best else None,
                                          config.best_mode)
