@@ -41,8 +41,6 @@ sys.path.insert(0, str(ROOT))
 
 
 def main(argv=None) -> int:
-    from gijax.cli.options import add_rig_option
-
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", choices=("cpu", "paper"), default="cpu",
@@ -56,7 +54,9 @@ def main(argv=None) -> int:
                          ".ckpt, .pth) mapped onto --preset")
     ap.add_argument("--int8", action=argparse.BooleanOptionalAction, default=None,
                     help="include the int8 file (default: at CPU size only)")
-    add_rig_option(ap, default="paper-train")
+    ap.add_argument("--rig", default="paper-train", metavar="NAME|FILE",
+                    help="the rig of the rendered scenes: a built-in rig name or a rig file "
+                         "(default: paper-train)")
     ap.add_argument("--scenes", type=int, default=4, help="rendered scenes (seeds 2000...)")
     ap.add_argument("--calibration", type=int, default=4,
                     help="int8 calibration scenes (seeds 1000...)")
