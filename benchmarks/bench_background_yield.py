@@ -85,7 +85,8 @@ def main() -> int:
                     help="length of the foreground workload when it runs alone")
     ap.add_argument("--burners", type=int, default=os.cpu_count(),
                     help="busy background processes (default: one per core)")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "background_yield.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "background_yield.json"),
+                    help="where the JSON results are written")
     args = ap.parse_args()
     if not Path("/proc/self/autogroup").exists():
         print("this kernel has no autogroups (/proc/self/autogroup); nothing to measure")

@@ -38,9 +38,12 @@ def _time(fn, arg, repeats):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--points", type=int, default=1_000_000)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--out", default="benchmarks/out/bench_cameras.json")
+    ap.add_argument("--points", type=int, default=1_000_000,
+                    help="points projected and unprojected per timing")
+    ap.add_argument("--repeats", type=int, default=5,
+                    help="timings per camera model (the best is reported)")
+    ap.add_argument("--out", default="benchmarks/out/bench_cameras.json",
+                    help="where the JSON results are written")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     v = rng.normal(size=(args.points, 3)).astype(np.float32)

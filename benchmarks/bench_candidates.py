@@ -32,8 +32,10 @@ def _time(fn, repeats: int) -> tuple[float, float]:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="benchmarks/out/bench_candidates.json")
-    parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--out", default="benchmarks/out/bench_candidates.json",
+                        help="where the JSON results are written")
+    parser.add_argument("--repeats", type=int, default=50,
+                        help="timed calls per case")
     parser.add_argument("--x64", action="store_true", help="float64 (default float32)")
     args = parser.parse_args(argv)
     jax.config.update("jax_enable_x64", bool(args.x64))

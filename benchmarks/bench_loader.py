@@ -92,14 +92,16 @@ def bench(name: str, rig, surrogate: Panorama, label: Panorama, samples: int, ba
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2,
+                    help="loader threads preparing batches")
     ap.add_argument("--batches", type=int, default=6, help="timed batches per size")
     ap.add_argument("--cpu-batch", type=int, default=4, help="batch size at the -cpu size")
     ap.add_argument("--paper-batch", type=int, default=2, help="batch size at the paper size")
     ap.add_argument("--augment", default="none",
                     help="augmentation preset of the training loader (gijax.data.augment), "
                          "e.g. photometric+body")
-    ap.add_argument("--out", default="benchmarks/out/bench_loader.json")
+    ap.add_argument("--out", default="benchmarks/out/bench_loader.json",
+                    help="where the JSON results are written")
     args = ap.parse_args(argv)
     cpu = _cpu_preset_sizes()
     paper_rig = builtin_rig("paper-train")

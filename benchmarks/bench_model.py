@@ -85,13 +85,16 @@ def measure(cfg, rig_name: str, reps: int, warmup: int) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", nargs="+", default=["cpu"], choices=["cpu", "paper"])
+    parser.add_argument("--sizes", nargs="+", default=["cpu"], choices=["cpu", "paper"],
+                        help="network sizes to time: the -cpu presets and/or the paper's")
     parser.add_argument("--presets", nargs="+", default=PAPER_NAMES,
                         help="paper preset names; the CPU size uses NAME-cpu")
-    parser.add_argument("--reps", type=int, default=3)
-    parser.add_argument("--warmup", type=int, default=1)
+    parser.add_argument("--reps", type=int, default=3, help="timed forward passes per case")
+    parser.add_argument("--warmup", type=int, default=1,
+                        help="untimed passes first (the first compiles)")
     parser.add_argument("--no-4cam", action="store_true", help="skip G16VV with 4 cameras")
-    parser.add_argument("--out", default=os.path.join("benchmarks", "out", "bench_model.json"))
+    parser.add_argument("--out", default=os.path.join("benchmarks", "out", "bench_model.json"),
+                        help="where the JSON results are written")
     args = parser.parse_args(argv)
 
     rows = []

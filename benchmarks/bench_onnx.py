@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def _setup(preset: str, workdir: str):
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.export.onnx_export import export_onnx, rendered_inputs
     from gijax.io.rigfile import load_rig
     from gijax.model import create_model
@@ -39,8 +39,7 @@ def _setup(preset: str, workdir: str):
     rig = load_rig("paper-train")
     model = create_model(preset, seed=0)
     cfg = model.config
-    cand, _ = resolve_candidates("train", rig, cfg.num_candidates, cfg.d_min, cfg.d_max,
-                                 kind=cfg.candidates)
+    cand, _ = model_candidates("train", rig, cfg)
     path = os.path.join(workdir, f"{preset}.onnx")
     if not os.path.exists(path):
         export_onnx(model, rig, cand, path)
@@ -146,9 +145,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--paper", action="store_true", help="also the paper-size G16V and G16VV")
     ap.add_argument("--repeats", type=int, default=10, help="alternating runs at CPU size")
-    ap.add_argument("--paper-repeats", type=int, default=2)
-    ap.add_argument("--presets", nargs="+", default=["G16V-cpu", "G16VV-cpu"])
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "bench_onnx.json"))
+    ap.add_argument("--paper-repeats", type=int, default=2,
+                    help="alternating runs at paper size (with --paper)")
+    ap.add_argument("--presets", nargs="+", default=["G16V-cpu", "G16VV-cpu"],
+                    help="CPU-size presets to export and time")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "bench_onnx.json"),
+                    help="where the JSON results are written")
     ap.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:

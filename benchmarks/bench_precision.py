@@ -68,7 +68,7 @@ def main(argv=None) -> int:
 
     import onnx
 
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.evaluate.metrics import evaluate_batch
     from gijax.export.onnx_export import OUTPUTS, export_onnx, model_rig
     from gijax.export.ort_session import make_session
@@ -84,8 +84,7 @@ def main(argv=None) -> int:
     else:
         model, cfg, train_cand, label = paper_model(args.preset, args.release_weights)
     rig = load_rig(args.rig)
-    cand, _ = resolve_candidates("train", rig, cfg.num_candidates, cfg.d_min, cfg.d_max,
-                                 train=train_cand, kind=cfg.candidates)
+    cand, _ = model_candidates("train", rig, cfg, train=train_cand)
     run_rig, pano = model_rig(cfg, rig), model_panorama(cfg)
     probes = {}
     with tempfile.TemporaryDirectory() as tmp:

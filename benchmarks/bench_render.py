@@ -96,8 +96,10 @@ def main(argv=None) -> int:
     parser.add_argument("--samples", type=int, default=3, help="timed samples at CPU size")
     parser.add_argument("--paper-samples", type=int, default=1,
                         help="timed samples at paper size (0 skips it)")
-    parser.add_argument("--out", default="benchmarks/out/bench_render.json")
-    parser.add_argument("--montage-dir", default="benchmarks/out")
+    parser.add_argument("--out", default="benchmarks/out/bench_render.json",
+                        help="where the JSON results are written")
+    parser.add_argument("--montage-dir", default="benchmarks/out",
+                        help="folder of the montages of rendered samples (one PNG per style)")
     args = parser.parse_args(argv)
     pano = Panorama.hemisphere(160, 640)
     paper = builtin_rig("paper-train")

@@ -92,14 +92,19 @@ def evaluate(samples: int, scale: float, pano_hw) -> list[dict]:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--sizes", nargs="+", default=list(SIZES), choices=list(SIZES))
-    p.add_argument("--cameras", nargs="+", type=int, default=[3, 4], choices=[3, 4])
-    p.add_argument("--candidates", nargs="+", type=int, default=[16, 32])
-    p.add_argument("--repeats", type=int, default=2)
+    p.add_argument("--sizes", nargs="+", default=list(SIZES), choices=list(SIZES),
+                   help="image and panorama sizes to time")
+    p.add_argument("--cameras", nargs="+", type=int, default=[3, 4], choices=[3, 4],
+                   help="camera counts (paper-train's 3 cameras, paper-test3's 4)")
+    p.add_argument("--candidates", nargs="+", type=int, default=[16, 32],
+                   help="candidate counts of the sweep")
+    p.add_argument("--repeats", type=int, default=2, help="alternating timed runs per case")
     p.add_argument("--eval", type=int, default=0, metavar="N",
                    help="also report MAE / RMSE on N rendered samples per rig (slow on CPU)")
-    p.add_argument("--eval-scale", type=float, default=0.125)
-    p.add_argument("--out", default=os.path.join("benchmarks", "out", "bench_rtss.json"))
+    p.add_argument("--eval-scale", type=float, default=0.125,
+                   help="image scale of the --eval samples (of the 1024 px fisheyes)")
+    p.add_argument("--out", default=os.path.join("benchmarks", "out", "bench_rtss.json"),
+                   help="where the JSON results are written")
     a = p.parse_args(argv)
     rows = []
     print(f"{'size':6} {'cams':>4} {'cands':>5} {'image':>5} {'match':>5} {'pano':>7} "

@@ -41,7 +41,8 @@ def main() -> int:
     ap.add_argument("--devices", default="1,2", help="forced CPU device counts")
     ap.add_argument("--batch", type=int, default=2, help="global batch (divisible by devices)")
     ap.add_argument("--steps", type=int, default=3, help="timed steps")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "bench_train.json"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "bench_train.json"),
+                    help="where the JSON results are written")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:

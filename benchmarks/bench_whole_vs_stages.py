@@ -46,10 +46,13 @@ def measure(cfg, reps: int) -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--sizes", nargs="+", choices=("cpu", "paper"), default=["cpu"])
-    p.add_argument("--presets", nargs="+", choices=STRUCTURES, default=list(STRUCTURES))
-    p.add_argument("--reps", type=int, default=3)
-    p.add_argument("--out", default="benchmarks/out/whole_vs_stages.json")
+    p.add_argument("--sizes", nargs="+", choices=("cpu", "paper"), default=["cpu"],
+                   help="network sizes: the -cpu presets and/or the paper's")
+    p.add_argument("--presets", nargs="+", choices=STRUCTURES, default=list(STRUCTURES),
+                   help="network structures to time whole and stage by stage")
+    p.add_argument("--reps", type=int, default=3, help="timed runs per case")
+    p.add_argument("--out", default="benchmarks/out/whole_vs_stages.json",
+                   help="where the JSON results are written")
     args = p.parse_args()
     rows = []
     cols = (*STAGES, "sum", "whole")

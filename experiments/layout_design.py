@@ -169,11 +169,14 @@ def validate(layouts: dict, spec_of: dict, cfg: dict, ckpt: str | None, seed: in
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--scale", choices=list(SCALES), default="smoke")
-    p.add_argument("--cameras", type=int, nargs="+", default=[3, 4, 5])
+    p.add_argument("--scale", choices=list(SCALES), default="smoke",
+                   help="search and validation sizes (SCALES): smoke checks the pipeline")
+    p.add_argument("--cameras", type=int, nargs="+", default=[3, 4, 5],
+                   help="camera counts whose layouts are designed")
     p.add_argument("--footprint", type=float, default=1.0, help="square side, metres")
     p.add_argument("--ckpt", help="run folder of a trained variance model (G16VV-cpu)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the search starts, the random search and the validation scenes")
     p.add_argument("--out", help="output stem (default experiments/out/layout_design_<scale>)")
     args = p.parse_args(argv)
     cfg = SCALES[args.scale]

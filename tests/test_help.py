@@ -142,3 +142,23 @@ def test_mixed_image_sizes_name_the_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 1 and f"{b}: image is 8 x 12 but {a} is 8 x 16" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_every_option_of_the_experiment_and_benchmark_scripts_is_explained():
+    """The scripts under experiments/ and benchmarks/ build their parsers inside main(), so the
+    check reads their source: every ``add_argument`` call has a ``help`` (argparse.SUPPRESS for
+    internal ones); a shared builder (``add_common_arguments``) is checked where it lives."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    missing = []
+    for folder in ("experiments", "benchmarks"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                        and node.func.attr == "add_argument"
+                        and not any(k.arg == "help" for k in node.keywords)):
+                    name = next((a.value for a in node.args if isinstance(a, ast.Constant)), "?")
+                    missing.append(f"{path.relative_to(root)}:{node.lineno} {name}")
+    assert not missing, "options without a help text:\n" + "\n".join(missing)
