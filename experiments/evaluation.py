@@ -124,7 +124,7 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
     import jax.numpy as jnp
     from flax import nnx
 
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.model import model_grids, model_rig
     from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
     from gijax.sweep.surrogate import as_float_image
@@ -133,8 +133,7 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
     if mc.cost_volume == "concat" and rig.num_cameras != mc.num_cameras:
         raise ValueError(f"{mc.name} concatenates exactly {mc.num_cameras} cameras; the rig has "
                          f"{rig.num_cameras}")
-    cand, _ = resolve_candidates(candidates_spec, rig, mc.num_candidates, mc.d_min, mc.d_max,
-                                 train=train_cand)
+    cand, _ = model_candidates(candidates_spec, rig, mc, train=train_cand)
     graphdef, state = nnx.split(model)
     mrig = model_rig(rig)
 

@@ -222,7 +222,7 @@ def ensure_adapted(work: Path, sizes: Sizes, run: dict, rig: str, loss: str, see
     The list file is named by a key of the settings and of the model's training command, so a
     changed setting or a retrained model never resumes or reuses another adaptation.
     """
-    from gijax.candidates.spec import resolve_candidates
+    from gijax.candidates.spec import model_candidates
     from gijax.train.adapt import AdaptConfig, adapt_candidates, state_folder
     from gijax.train.sources import dataset_stream_factory, open_dataset
     from gijax.model import model_rig
@@ -244,8 +244,7 @@ def ensure_adapted(work: Path, sizes: Sizes, run: dict, rig: str, loss: str, see
     t0 = time.perf_counter()
     model, mc, train_cand = _frozen_model(run["run"], run["command"])
     reader = open_dataset(data, "adaptation")
-    initial, how = resolve_candidates("train", reader.rig, mc.num_candidates, mc.d_min,
-                                      mc.d_max, train=train_cand, kind=mc.candidates)
+    initial, how = model_candidates("train", reader.rig, mc, train=train_cand)
     config = AdaptConfig(loss=loss, steps=sizes.adapt_steps, lr=sizes.adapt_lr,
                          batch_size=sizes.adapt_batch, seed=seed)
     make = dataset_stream_factory(reader, reader.rig, config.batch_size, config.seed,
