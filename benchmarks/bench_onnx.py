@@ -51,12 +51,12 @@ def _jax_runner(model, rig, cand):
     import jax.numpy as jnp
     from flax import nnx
 
-    from gijax.export.onnx_export import eval_view, model_rig
+    from gijax.export.onnx_export import eval_view, rig_at_model_size
     from gijax.model import model_grids
     from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
 
     cfg = model.config
-    run_rig = model_rig(cfg, rig)
+    run_rig = rig_at_model_size(cfg, rig)
     c = jnp.asarray(cand, jnp.float32)
 
     @nnx.jit

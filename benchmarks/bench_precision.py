@@ -70,7 +70,7 @@ def main(argv=None) -> int:
 
     from gijax.candidates.spec import model_candidates
     from gijax.evaluate.metrics import evaluate_batch
-    from gijax.export.onnx_export import OUTPUTS, export_onnx, model_rig
+    from gijax.export.onnx_export import OUTPUTS, export_onnx, rig_at_model_size
     from gijax.export.ort_session import make_session
     from gijax.export.precision import FLOAT, naive_fp16, plan_fp16
     from gijax.io.rigfile import load_rig
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
         model, cfg, train_cand, label = paper_model(args.preset, args.release_weights)
     rig = load_rig(args.rig)
     cand, _ = model_candidates("train", rig, cfg, train=train_cand)
-    run_rig, pano = model_rig(cfg, rig), model_panorama(cfg)
+    run_rig, pano = rig_at_model_size(cfg, rig), model_panorama(cfg)
     probes = {}
     with tempfile.TemporaryDirectory() as tmp:
         paths = {"fp32": Path(tmp) / "fp32.onnx"}

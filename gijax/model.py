@@ -96,7 +96,7 @@ def model_grids(config: ModelConfig, rig: Rig, candidates: Array,
     panorama into the feature maps, the guide grids when ``config.refine`` and the match grids
     with a matching cost. Pure and traceable: evaluated once for a fixed rig, or inside jit
     when the rig is an input."""
-    check_candidates(config, candidates)
+    check_model_candidates(config, candidates)
     pano = model_panorama(config) if pano is None else pano
     _check_output_panorama(config, pano)
     samples = config.matching_samples if config.matching_cost != "none" else 0
@@ -116,7 +116,7 @@ def coverage_note(config: ModelConfig, pano: Panorama) -> str | None:
             f"on the {asked} here, whose other latitudes it has never seen")
 
 
-def check_candidates(config: ModelConfig, candidates) -> None:
+def check_model_candidates(config: ModelConfig, candidates) -> None:
     """ValueError unless ``candidates`` is (num_candidates,), and, when its values are known
     (not traced), finite, positive and strictly ascending."""
     shape = tuple(np.shape(candidates))

@@ -52,7 +52,7 @@ from gijax.geometry.panorama_frame import coverage_of, panorama_rays, panorama_r
 from gijax.data.images import fit_images
 from gijax.geometry.rig import Rig, project_rig_points
 from gijax.io.replace import FolderKind
-from gijax.model import (OmniStereoNet, check_candidates, coverage_note, model_grids,
+from gijax.model import (OmniStereoNet, check_model_candidates, coverage_note, model_grids,
                          model_panorama, model_rig)
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
@@ -189,7 +189,7 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
                          f"were given")
     if images.shape[-1] != 3:
         raise ValueError(f"images must have 3 (RGB) channels; found {images.shape[-1]}")
-    check_candidates(config, candidates)
+    check_model_candidates(config, candidates)
     pano = model_panorama(config) if pano is None else pano
     note = coverage_note(config, pano)
     if note and log is not None:

@@ -101,9 +101,9 @@ def test_paired_ratio_and_increment():
 
 def test_bad_inputs_raise():
     with pytest.raises(ValueError, match="at least one"):
-        timing.summarize([])
+        timing.timing_stats([])
     with pytest.raises(ValueError, match="finite"):
-        timing.summarize([1.0, float("nan")])
+        timing.timing_stats([1.0, float("nan")])
     with pytest.raises(ValueError, match="reps"):
         timing.time_call(lambda: None, reps=0)
     with pytest.raises(ValueError, match="equal length"):

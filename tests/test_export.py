@@ -88,11 +88,11 @@ def test_rig_as_input_dynamic_batch_matches_jax(setup):
     assert names == ["images", "masks", "intrinsics", "rotations", "translations", "reference",
                      "candidates"]
     assert sess.get_inputs()[0].shape[0] == "B"
-    from gijax.export.onnx_export import model_rig
+    from gijax.export.onnx_export import rig_at_model_size
     from gijax.export.ort_predict import rig_feed
 
     feed = {"images": np.repeat(s["images"], 2, 0), "masks": np.repeat(s["masks"], 2, 0)}
-    feed.update(rig_feed(model_rig(TINY, s["rig"]), CAND))
+    feed.update(rig_feed(rig_at_model_size(TINY, s["rig"]), CAND))
     got = dict(zip(OUTPUTS, sess.run(list(OUTPUTS), feed)))
     for b in range(2):
         np.testing.assert_allclose(got["inv_distance"][b], s["ref"]["inv_distance"][0],

@@ -177,7 +177,7 @@ NOT_TRACED = {
     "gijax.geometry.cameras.pixel_grid": "constant of static image sizes",
     "gijax.geometry.panorama.lonlat_grid": "constant of a static panorama",
     "gijax.geometry.panorama.ray_grid": "constant of a static panorama",
-    "gijax.candidates.parallax.panorama_rays": "constant of a static panorama",
+    "gijax.candidates.parallax.rays_and_solid_angles": "constant of a static panorama",
     "gijax.geometry.layouts.synthetic_camera": "camera from static numbers",
     "gijax.geometry.layouts.builtin_rig": "rig from a name",
     "gijax.geometry.layouts.layout_rig": "rig from NumPy positions (an input edge)",

@@ -11,7 +11,7 @@ _HOMES = {
     "memory": ("CaseMemory", "PeakRSS", "compiled_memory", "device_memory", "device_peak_mib",
                "host_peak_rss_mib", "rss_bytes"),
     "report": ("markdown_grid", "markdown_table", "text_table", "write_json", "write_text"),
-    "timing": ("Stats", "block", "linear_increment", "paired_ratio", "summarize",
+    "timing": ("Stats", "block", "linear_increment", "paired_ratio", "timing_stats",
                "time_alternating", "time_call"),
 }
 _HOME_OF = {name: module for module, names in _HOMES.items() for name in names}
@@ -27,6 +27,6 @@ __all__ = [
     "CaseMemory", "PeakRSS", "Stats", "block", "compiled_memory", "cost_of", "device_memory",
     "device_peak_mib", "efficiency", "git_revision", "host_peak_rss_mib", "linear_increment",
     "machine_info", "markdown_grid", "markdown_table",
-    "matmul_peak", "memory_bandwidth", "paired_ratio", "rss_bytes", "summarize", "text_table",
+    "matmul_peak", "memory_bandwidth", "paired_ratio", "rss_bytes", "timing_stats", "text_table",
     "time_alternating", "time_call", "write_json", "write_text",
 ]

@@ -64,11 +64,11 @@ class Stats:
                 f"{prefix}mean": s.mean, f"{prefix}n": s.n}
 
 
-def summarize(samples: Sequence[float]) -> Stats:
+def timing_stats(samples: Sequence[float]) -> Stats:
     """Median, quartiles, min, max and mean of ``samples`` (at least one finite value)."""
     x = np.asarray(samples, np.float64).reshape(-1)
     if x.size == 0:
-        raise ValueError("summarize needs at least one sample; found none")
+        raise ValueError("timing_stats needs at least one sample; found none")
     if not np.all(np.isfinite(x)):
         raise ValueError(f"samples must be finite; found {x.tolist()}")
     q1, med, q3 = np.percentile(x, [25.0, 50.0, 75.0])
@@ -97,7 +97,7 @@ def time_call(fn: Callable[[], object], *, warmup: int = 1, reps: int = 5,
         t0 = timer()
         block(fn())
         times.append(timer() - t0)
-    return summarize(times), times
+    return timing_stats(times), times
 
 
 def time_alternating(fns: Mapping[str, Callable[[], object]], *, warmup: int = 1, reps: int = 5,
@@ -134,7 +134,7 @@ def paired_ratio(numerator: Sequence[float], denominator: Sequence[float]) -> St
                          f"{a.shape} and {b.shape}")
     if np.any(b <= 0):
         raise ValueError("paired_ratio: denominators must be positive durations")
-    return summarize(a / b)
+    return timing_stats(a / b)
 
 
 def linear_increment(counts: Sequence[float], values: Sequence[float]) -> dict:

@@ -257,11 +257,11 @@ def run_child(python: str, args: Sequence[str]) -> dict:
 
 def peer_row(preset: str, mode: str, batch: int, runs: Mapping[str, list[dict]]) -> dict:
     """One table row from the children's rows of both frameworks (one per round each)."""
-    from gijax.bench.timing import summarize
+    from gijax.bench.timing import timing_stats
 
     row = {"preset": preset, "mode": mode, "batch": batch, "rounds": len(runs["gijax"])}
     for fw in FRAMEWORKS:
-        stats = summarize([t for r in runs[fw] for t in r["step_s"]])
+        stats = timing_stats([t for r in runs[fw] for t in r["step_s"]])
         row.update({f"{fw}_s_min": stats.min, f"{fw}_s_median": stats.median,
                     f"{fw}_s_max": stats.max, f"{fw}_samples_per_s": batch / stats.median,
                     f"{fw}_peak_gb": max(r["peak_gb"] for r in runs[fw]),

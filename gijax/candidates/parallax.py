@@ -27,7 +27,7 @@ from gijax.numerics import safe_div, safe_norm, safe_sqrt
 Array = jax.Array
 
 
-def panorama_rays(pano: Panorama, dtype) -> tuple[Array, Array]:
+def rays_and_solid_angles(pano: Panorama, dtype) -> tuple[Array, Array]:
     """Unit rays (R, 3) of the panorama's pixel centres and their solid angles (R,), sr."""
     rays = ray_grid(pano, dtype).reshape(-1, 3)
     _, lat = lonlat_grid(pano, dtype)

@@ -176,7 +176,7 @@ def rig_terms(rig: Rig, d_min, d_max, pano: Panorama = DEFAULT_PANO, measure: st
     """
     dt = rig.translations.dtype
     if rays is None:
-        rays, solid = par.panorama_rays(pano, dt)
+        rays, solid = par.rays_and_solid_angles(pano, dt)
         # The panorama's rays, oriented by the rig's panorama frame.
         rays = rays @ panorama_rotation(rig).astype(dt).T
     else:

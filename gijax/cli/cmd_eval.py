@@ -3,7 +3,6 @@ trained run or the classical baseline."""
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 

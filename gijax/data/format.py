@@ -96,7 +96,7 @@ def load_json(path: str | os.PathLike, what: str) -> dict:
     return doc
 
 
-def require(doc: dict, key: str, path, kind: type | tuple = object) -> Any:
+def document_field(doc: dict, key: str, path, kind: type | tuple = object) -> Any:
     """``doc[key]``, raising a ValueError naming the file and the field when absent or mistyped
     (or when ``doc`` is no JSON object)."""
     if not isinstance(doc, dict):
@@ -125,12 +125,12 @@ def camera_from_json(doc: dict, path) -> Any:
     from gijax.io.parsing import Where, checked_camera, floats, resolution
 
     where = Where(Path(str(path)), doc.get("name") if isinstance(doc, dict) else None)
-    model = require(doc, "model", path, str)
+    model = document_field(doc, "model", path, str)
     if model not in cam_lib.CAMERA_MODELS:
         raise ValueError(f"{path}: camera {doc.get('name')!r} has unknown model {model!r}; "
                          f"expected one of {sorted(cam_lib.CAMERA_MODELS)}")
     cls = cam_lib.CAMERA_MODELS[model]
-    intr = require(doc, "intrinsics", path, dict)
+    intr = document_field(doc, "intrinsics", path, dict)
     missing = [k for k in cls.PARAMS if k not in intr]
     if missing:
         raise ValueError(f"{path}: camera {doc.get('name')!r} is missing intrinsics {missing}")
@@ -138,9 +138,9 @@ def camera_from_json(doc: dict, path) -> Any:
               for k in cls.PARAMS}
     fov_deg = (math.degrees(float(floats(doc["fov_rad"], 1, "fov_rad", where,
                                          "one number of radians")[0]))
-               if "fov_rad" in doc else require(doc, "fov_deg", path, (int, float)))
-    size = resolution([require(doc, "width", path, int), require(doc, "height", path, int)],
-                      where)
+               if "fov_rad" in doc else document_field(doc, "fov_deg", path, (int, float)))
+    size = resolution([document_field(doc, "width", path, int),
+                       document_field(doc, "height", path, int)], where)
     return checked_camera(model, params, size, fov_deg, where)
 
 
@@ -175,24 +175,24 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
     rig mask PNGs."""
     from gijax.io.parsing import Where, check_rotation, floats
     meta_path, graph_path = root / METADATA, root / FRAME_GRAPH
-    cam_docs = require(meta, "cameras", meta_path, list)
+    cam_docs = document_field(meta, "cameras", meta_path, list)
     if not cam_docs:
         raise ValueError(f"{meta_path}: field 'cameras' is empty")
-    frames = require(graph, "frames", graph_path, dict)
+    frames = document_field(graph, "frames", graph_path, dict)
     cams, rots, trans, masks, names = [], [], [], [], []
     for k, doc in enumerate(cam_docs):
         where = f"{meta_path} cameras[{k}]"
-        name = require(doc, "name", where, str)
+        name = document_field(doc, "name", where, str)
         cam = camera_from_json(doc, where)
         if name not in frames:
             raise ValueError(f"{graph_path}: no frame for camera {name!r}")
         pose = frames[name]
         # The pose is checked as a rig file's is: finite, and a proper rotation.
         at = Where(graph_path, name)
-        rot = check_rotation(floats(require(pose, "rotation", f"{graph_path} frame {name!r}",
+        rot = check_rotation(floats(document_field(pose, "rotation", f"{graph_path} frame {name!r}",
                                             list), 9, "rotation", at,
                                     "a 3x3 rotation matrix").reshape(3, 3), "rotation", at)
-        t = floats(require(pose, "translation", f"{graph_path} frame {name!r}", list), 3,
+        t = floats(document_field(pose, "translation", f"{graph_path} frame {name!r}", list), 3,
                    "translation", at, "3 finite numbers in metres")
         mask_file = doc.get("mask")
         mask = None
@@ -221,7 +221,7 @@ def rig_from_docs(root: Path, meta: dict, graph: dict) -> Rig:
     occ = None
     if occ_doc:
         at = Where(meta_path)
-        occ = Cylinder(*(jnp.asarray(floats(require(occ_doc, f, f"{meta_path} occluder",
+        occ = Cylinder(*(jnp.asarray(floats(document_field(occ_doc, f, f"{meta_path} occluder",
                                                     (int, float)), 1, f"occluder.{f}", at,
                                             "one number in metres")[0], jnp.float32)
                          for f in ("x", "y", "radius", "z_min", "z_max")))
@@ -244,8 +244,9 @@ def pano_from_metadata(meta: dict, path) -> Panorama:
     -90 <= lat_min < lat_max <= 90 degrees."""
     from gijax.io.bounds import check_size
 
-    doc = require(meta, "panorama", path, dict)
-    height, width = require(doc, "height", path, int), require(doc, "width", path, int)
+    doc = document_field(meta, "panorama", path, dict)
+    height = document_field(doc, "height", path, int)
+    width = document_field(doc, "width", path, int)
     if isinstance(height, bool) or isinstance(width, bool):
         raise ValueError(f"{path}: field 'panorama': height and width must be integers; found "
                          f"{height!r}, {width!r}")
@@ -397,21 +398,21 @@ def read_manifest(root: Path) -> dict:
     """Load and check manifest.json (fields and types), naming the file on every error."""
     path = root / MANIFEST
     doc = load_json(path, "manifest")
-    trajs = require(doc, "trajectories", path, list)
+    trajs = document_field(doc, "trajectories", path, list)
     for k, t in enumerate(trajs):
         if not isinstance(t, dict):
             raise ValueError(f"{path}: trajectories[{k}] must be an object; found "
                              f"{type(t).__name__}")
-        require(t, "name", f"{path} trajectories[{k}]", str)
-        require(t, "file_list", f"{path} trajectories[{k}]", str)
-    require(doc, "metadata", path, str)
+        document_field(t, "name", f"{path} trajectories[{k}]", str)
+        document_field(t, "file_list", f"{path} trajectories[{k}]", str)
+    document_field(doc, "metadata", path, str)
     version = manifest_version(doc, path)
     if version == 1:
-        require(doc, "frame_graph", path, str)
+        document_field(doc, "frame_graph", path, str)
         if "rig" in doc:
-            require(doc, "rig", path, str)
+            document_field(doc, "rig", path, str)
     else:
-        require(doc, "rig", path, str)
+        document_field(doc, "rig", path, str)
     return doc
 
 

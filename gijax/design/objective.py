@@ -133,7 +133,7 @@ def _margins(layout: Layout, spec: DesignSpec):
     solid angles (R,)."""
     rot, trans, ref = layout_pose(layout, spec)
     dt = trans.dtype
-    rays, solid = par.panorama_rays(spec.pano, dt)
+    rays, solid = par.rays_and_solid_angles(spec.pano, dt)
     ds = par.sample_distances(spec.d_min, spec.d_max, spec.samples, dt)  # (S,)
     pts = ref + ds[:, None, None] * rays[None]  # (S, R, 3)
 

@@ -51,7 +51,7 @@ from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, scale_rig
 from gijax.io.paths import atomic_path
-from gijax.model import (OmniStereoNet, check_candidates, model_grids, model_panorama,
+from gijax.model import (OmniStereoNet, check_model_candidates, model_grids, model_panorama,
                          with_conv3d)
 from gijax.sweep.grids import SurrogateMaps, SweepGrids, fisheye_surrogates, surrogate_resampling
 
@@ -75,7 +75,7 @@ class ExportResult:
     metadata: dict
 
 
-def model_rig(config, rig: Rig) -> Rig:
+def rig_at_model_size(config, rig: Rig) -> Rig:
     """The rig at the model's image size (intrinsics scaled by ``config.image_scale``)."""
     return rig if config.image_scale == 1.0 else scale_rig(rig, config.image_scale)
 
@@ -88,7 +88,7 @@ def check_export_inputs(model: OmniStereoNet, rig: Rig, candidates) -> None:
                          f"was trained for that count); the rig has {rig.num_cameras}")
     if rig.num_cameras < 2:
         raise ValueError(f"stereo needs at least 2 cameras; the rig has {rig.num_cameras}")
-    check_candidates(cfg, candidates)
+    check_model_candidates(cfg, candidates)
 
 
 def eval_view(model: OmniStereoNet) -> OmniStereoNet:
@@ -203,7 +203,7 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     if not dynamic_batch and (int(batch) != batch or batch < 1):
         raise ValueError(f"batch must be a positive integer; found {batch}")
     check_export_inputs(model, rig, candidates)
-    run_rig = model_rig(cfg, rig)
+    run_rig = rig_at_model_size(cfg, rig)
     pano = model_panorama(cfg) if pano is None else pano
     view = eval_view(with_conv3d(model, "native"))  # one Conv node per 3-D conv
     fn = build_function(view, run_rig, candidates, rig_as_input, pano)
@@ -405,7 +405,7 @@ def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates,
     (B, N, h, w); ``rig`` at its calibrated size; ``pano`` the output panorama (default the
     model's own)."""
     cfg = model.config
-    run_rig = model_rig(cfg, rig)
+    run_rig = rig_at_model_size(cfg, rig)
     cand = jnp.asarray(candidates, jnp.float32)
 
     @nnx.jit
@@ -426,7 +426,7 @@ def rendered_inputs(config, rig: Rig, seed: int = 0, batch: int = 1) -> tuple:
     :func:`gijax.render.render_sample` for the rig at the model's image size."""
     from gijax.render import render_sample
 
-    run_rig = model_rig(config, rig)
+    run_rig = rig_at_model_size(config, rig)
     imgs, msks = [], []
     for i in range(batch):
         s = render_sample(run_rig, seed + i, pano=model_panorama(config))
@@ -459,7 +459,7 @@ def validate_export(path: str | os.PathLike, model: OmniStereoNet, rig: Rig, can
                         export_panorama(meta, model.config))
     feed = {IMAGES: np.asarray(images, np.float32), MASKS: np.asarray(masks, np.float32)}
     if meta.get("mode") == "rig_as_input":
-        feed.update(rig_feed(model_rig(model.config, rig), candidates))
+        feed.update(rig_feed(rig_at_model_size(model.config, rig), candidates))
     got = dict(zip(OUTPUTS, sess.run(list(OUTPUTS), feed)))
     d_inv = float(np.max(np.abs(got["inv_distance"] - ref["inv_distance"])))
     d_ent = float(np.max(np.abs(got["entropy"] - ref["entropy"])))

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from gijax.geometry.rig import Rig
-from gijax.io.parsing import Where, chain_to_rig, checked_camera, floats, quat_matrix, require, \
-    resolution
+from gijax.io.parsing import Where, chain_to_rig, checked_camera, floats, mapping_field, \
+    quat_matrix, resolution
 
 # basalt camera_type -> (gijax model, intrinsics names shared by both)
 MODELS = {
@@ -27,11 +27,11 @@ _POSE_FIELDS = ("px", "py", "pz", "qx", "qy", "qz", "qw")
 
 
 def _camera(ci, r, w: Where):
-    ctype = require(ci, "camera_type", w, f"one of {sorted(MODELS)}")
+    ctype = mapping_field(ci, "camera_type", w, f"one of {sorted(MODELS)}")
     if not isinstance(ctype, str) or ctype not in MODELS:
         raise w.error("camera_type", f"one of {sorted(MODELS)}", ctype)
     gmodel, keys = MODELS[ctype]
-    values = require(ci, "intrinsics", w, f"a mapping with {list(keys)}")
+    values = mapping_field(ci, "intrinsics", w, f"a mapping with {list(keys)}")
     if not isinstance(values, dict) or set(values) != set(keys):
         raise w.error("intrinsics", f"exactly the {len(keys)} intrinsics {list(keys)} of "
                                     f"camera_type {ctype!r}",
@@ -57,10 +57,10 @@ def _pose(pose, w: Where) -> np.ndarray:
 def parse_calibration(path: Path, data: dict, frame_camera: int) -> Rig:
     """The rig of a decoded basalt calibration; ``path`` only names the file in errors."""
     where = Where(path)
-    v = require(data, "value0", where, "the basalt calibration object 'value0'")
-    poses = require(v, "T_imu_cam", where, "a list of camera poses {px..qw}")
-    intr = require(v, "intrinsics", where, "a list of camera intrinsics")
-    res = require(v, "resolution", where, "a list of [width, height]")
+    v = mapping_field(data, "value0", where, "the basalt calibration object 'value0'")
+    poses = mapping_field(v, "T_imu_cam", where, "a list of camera poses {px..qw}")
+    intr = mapping_field(v, "intrinsics", where, "a list of camera intrinsics")
+    res = mapping_field(v, "resolution", where, "a list of [width, height]")
     for field, lst in (("T_imu_cam", poses), ("intrinsics", intr), ("resolution", res)):
         if not isinstance(lst, list) or not lst:
             raise where.error(f"value0.{field}", "a non-empty list, one entry per camera", lst)

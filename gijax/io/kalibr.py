@@ -16,15 +16,15 @@ import numpy as np
 
 from gijax.geometry.rig import Rig
 from gijax.io.parsing import Where, chain_to_rig, check_rotation, checked_camera, floats, \
-    require, resolution
+    mapping_field, resolution
 
 
 def _camera(key: str, c: dict, where: Where):
     w = where.at(key)
     if not isinstance(c, dict):
         raise w.error(key, "a mapping with camera_model, intrinsics, resolution", c)
-    model = require(c, "camera_model", w, "one of 'ds', 'eucm', 'pinhole', 'omni'")
-    intr = require(c, "intrinsics", w, "a list of intrinsics")
+    model = mapping_field(c, "camera_model", w, "one of 'ds', 'eucm', 'pinhole', 'omni'")
+    intr = mapping_field(c, "intrinsics", w, "a list of intrinsics")
     dist = c.get("distortion_model", "none")
     if model == "ds":
         v = floats(intr, 6, "intrinsics", w, "6 values [xi, alpha, fu, fv, pu, pv] for 'ds'")
@@ -37,14 +37,14 @@ def _camera(key: str, c: dict, where: Where):
         if dist != "equidistant":
             raise w.error("distortion_model", "'equidistant' for a pinhole camera (the "
                                               "Kannala-Brandt fisheye model)", dist)
-        k = floats(require(c, "distortion_coeffs", w, "[k1, k2, k3, k4]"), 4,
+        k = floats(mapping_field(c, "distortion_coeffs", w, "[k1, k2, k3, k4]"), 4,
                    "distortion_coeffs", w, "4 values [k1, k2, k3, k4]")
         gmodel = "kb"
         params = dict(fx=v[0], fy=v[1], cx=v[2], cy=v[3], k1=k[0], k2=k[1], k3=k[2], k4=k[3])
     elif model == "omni":
         v = floats(intr, 5, "intrinsics", w, "5 values [xi, fu, fv, pu, pv] for 'omni'")
         if dist == "radtan":
-            k = floats(require(c, "distortion_coeffs", w, "[k1, k2, p1, p2]"), 4,
+            k = floats(mapping_field(c, "distortion_coeffs", w, "[k1, k2, p1, p2]"), 4,
                        "distortion_coeffs", w, "4 values [k1, k2, p1, p2] for 'radtan'")
         elif dist in ("none", None):
             k = (0.0, 0.0, 0.0, 0.0)
@@ -58,7 +58,7 @@ def _camera(key: str, c: dict, where: Where):
                                       "'equidistant'), 'omni' (with 'radtan' or 'none')", model)
     if model in ("ds", "eucm") and dist not in ("none", None):
         raise w.error("distortion_model", f"'none' for camera_model {model!r}", dist)
-    res = resolution(require(c, "resolution", w, "[width, height]"), w)
+    res = resolution(mapping_field(c, "resolution", w, "[width, height]"), w)
     cam = checked_camera(gmodel, {k: float(x) for k, x in params.items()}, res, None, w)
     return cam, w
 
@@ -85,7 +85,7 @@ def parse_camchain(path: Path, data: dict, frame_camera: int) -> Rig:
         if i == 0:
             t_cn_c0.append(np.eye(4))
             continue
-        t = floats(require(c, "T_cn_cnm1", w, "a 4x4 transform from cam n-1 to cam n"), 16,
+        t = floats(mapping_field(c, "T_cn_cnm1", w, "a 4x4 transform from cam n-1 to cam n"), 16,
                    "T_cn_cnm1", w, "a 4x4 transform").reshape(4, 4)
         if np.abs(t[3] - [0, 0, 0, 1]).max() > 1e-9:
             raise w.error("T_cn_cnm1", "a 4x4 rigid transform with last row [0, 0, 0, 1]",

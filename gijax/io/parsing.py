@@ -38,7 +38,7 @@ class Where:
         return ValueError(f"{where}: field {field!r}: expected {expected}, found {found!r}")
 
 
-def require(d: dict, key: str, where: Where, expected: str):
+def mapping_field(d: dict, key: str, where: Where, expected: str):
     """``d[key]``, or an error saying the field is missing (or ``d`` is no mapping)."""
     if not isinstance(d, dict):
         raise where.error(key, f"a mapping containing {key!r}", d)

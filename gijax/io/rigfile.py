@@ -56,7 +56,7 @@ from gijax.geometry.rig import Rig, make_rig
 from gijax.io import basalt, kalibr
 from gijax.io.masks import read_mask
 from gijax.io.parsing import Where, check_rotation, checked_camera, floats, quat_matrix, \
-    require, resolution
+    mapping_field, resolution
 from gijax.io.paths import write_png_atomic, write_text_atomic
 from gijax.io.text import one_line, read_text
 
@@ -97,18 +97,18 @@ def _gijax_camera(i: int, c: dict, where: Where, root: Path):
     unknown = sorted(set(c) - _CAMERA_KEYS)
     if unknown:
         raise w.error(unknown[0], f"only the fields {sorted(_CAMERA_KEYS)}", unknown)
-    model = require(c, "model", w, f"a camera model, one of {sorted(CAMERA_MODELS)}")
+    model = mapping_field(c, "model", w, f"a camera model, one of {sorted(CAMERA_MODELS)}")
     if not isinstance(model, str) or model not in CAMERA_MODELS:
         raise w.error("model", f"one of {sorted(CAMERA_MODELS)}", model)
     names = CAMERA_MODELS[model].PARAMS
-    intr = require(c, "intrinsics", w, f"a mapping with {list(names)}")
+    intr = mapping_field(c, "intrinsics", w, f"a mapping with {list(names)}")
     if not isinstance(intr, dict):
         raise w.error("intrinsics", f"a mapping with {list(names)}", intr)
     if set(intr) != set(names):
         raise w.error("intrinsics", f"exactly the {len(names)} intrinsics {list(names)} of "
                                     f"model {model!r}", sorted(intr))
     params = {k: float(floats(intr[k], 1, f"intrinsics.{k}", w, "one number")[0]) for k in names}
-    res = resolution(require(c, "resolution", w, "[width, height]"), w)
+    res = resolution(mapping_field(c, "resolution", w, "[width, height]"), w)
     cam = checked_camera(model, params, res, c.get("fov_deg"), w)
     if ("rotation" in c) == ("quaternion" in c):
         raise w.error("rotation", "exactly one of 'rotation' (3x3) or 'quaternion' "
@@ -120,7 +120,7 @@ def _gijax_camera(i: int, c: dict, where: Where, root: Path):
     else:
         q = floats(c["quaternion"], 4, "quaternion", w, "[qx, qy, qz, qw]")
         rot = quat_matrix(q, "quaternion", w)
-    trans = floats(require(c, "translation", w, "[x, y, z] in metres"), 3, "translation", w,
+    trans = floats(mapping_field(c, "translation", w, "[x, y, z] in metres"), 3, "translation", w,
                    "[x, y, z] in metres")
     mask = None
     if c.get("mask") is not None:
@@ -136,7 +136,7 @@ def _parse_gijax(path: Path, data: dict) -> Rig:
         raise where.error(unknown[0], f"only the top-level fields {sorted(_RIG_KEYS)}", unknown)
     if data.get("gijax_rig") != FORMAT_VERSION:
         raise where.error("gijax_rig", f"format version {FORMAT_VERSION}", data.get("gijax_rig"))
-    cams = require(data, "cameras", where, "a non-empty list of cameras")
+    cams = mapping_field(data, "cameras", where, "a non-empty list of cameras")
     if not isinstance(cams, list) or not cams:
         raise where.error("cameras", "a non-empty list of cameras", cams)
     parsed = [_gijax_camera(i, c, where, path.parent) for i, c in enumerate(cams)]

@@ -12,7 +12,7 @@ from gijax.bench.cases.context import Context, program_row, timing_row
 from gijax.bench.cost import compile_fn
 from gijax.bench.memory import CaseMemory
 from gijax.bench.rigs import polygon_rig
-from gijax.bench.timing import linear_increment, paired_ratio, summarize, time_alternating
+from gijax.bench.timing import linear_increment, paired_ratio, timing_stats, time_alternating
 
 
 def _rtss_program(ctx: Context, cameras: int):
@@ -57,7 +57,7 @@ def rtss(ctx: Context) -> dict:
     times = time_alternating({n: (lambda c=c, a=a: c(*a)) for n, (c, a) in progs.items()},
                              warmup=max(ctx.warmup - 1, 0), reps=ctx.reps)
     for row in rows:
-        stats = summarize(times[row["cameras"]])
+        stats = timing_stats(times[row["cameras"]])
         row.update(timing_row(stats))
         row.update(program_row(progs[row["cameras"]][0], stats.median, ctx.limits))
     out = {"rows": rows}

@@ -15,7 +15,7 @@ from gijax.bench.cases.programs import (eval_forward_program, rig_sweep, stage_p
 from gijax.bench.cost import compile_fn
 from gijax.bench.memory import CaseMemory, compiled_memory
 from gijax.bench.rigs import network_inputs, network_rig, polygon_rig, with_candidates
-from gijax.bench.timing import linear_increment, paired_ratio, summarize, time_alternating
+from gijax.bench.timing import linear_increment, paired_ratio, timing_stats, time_alternating
 from gijax.geometry.layouts import builtin_rig
 from gijax.nn.presets import get_preset
 
@@ -117,7 +117,7 @@ def scaling(ctx: Context) -> dict:
     times = time_alternating({k: (lambda c=c, a=a: c(*a)) for k, (c, a) in progs.items()},
                              warmup=max(ctx.warmup - 1, 0), reps=s.scaling_reps)
     for key, row in rows.items():
-        stats = summarize(times[key])
+        stats = timing_stats(times[key])
         row.update(timing_row(stats))
         row.update(program_row(progs[key][0], stats.median, ctx.limits))
     d0 = base.num_candidates

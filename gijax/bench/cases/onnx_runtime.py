@@ -12,7 +12,7 @@ import numpy as np
 from gijax.bench.cases.context import Context, program_row, timing_row
 from gijax.bench.cost import compile_fn
 from gijax.bench.memory import MIB, CaseMemory
-from gijax.bench.timing import paired_ratio, summarize, time_alternating
+from gijax.bench.timing import paired_ratio, timing_stats, time_alternating
 from gijax.geometry.layouts import builtin_rig
 from gijax.nn.presets import get_preset
 
@@ -20,7 +20,7 @@ from gijax.nn.presets import get_preset
 def onnx_vs_jax(ctx: Context) -> dict:
     """The exported graph in onnxruntime against the same function jitted in JAX (rig and
     grids baked in, raw fisheye images in), alternating runs, ratio per round."""
-    from gijax.export.onnx_export import build_function, eval_view, export_onnx, model_rig
+    from gijax.export.onnx_export import build_function, eval_view, export_onnx, rig_at_model_size
     from gijax.export.ort_session import default_providers, make_session
     from gijax.model import create_model
 
@@ -33,7 +33,7 @@ def onnx_vs_jax(ctx: Context) -> dict:
         rig = builtin_rig("paper-train")
         model = create_model(cfg, seed=0)
         cand = np.geomspace(cfg.d_min, cfg.d_max, cfg.num_candidates).astype(np.float32)
-        run_rig = model_rig(cfg, rig)
+        run_rig = rig_at_model_size(cfg, rig)
         cam = run_rig.cameras[0]
         rng = np.random.default_rng(0)
         images = rng.uniform(size=(1, run_rig.num_cameras, cam.height, cam.width, 3)
@@ -59,7 +59,7 @@ def onnx_vs_jax(ctx: Context) -> dict:
             {"jax": lambda: compiled(j_images, j_masks),
              "ort": lambda: sess.run(["inv_distance"], {"images": images, "masks": masks})},
             warmup=ctx.warmup, reps=ctx.reps)
-        js, os_ = summarize(times["jax"]), summarize(times["ort"])
+        js, os_ = timing_stats(times["jax"]), timing_stats(times["ort"])
         ratio = paired_ratio(times["jax"], times["ort"])
         row = {"preset": name, "provider": sess.get_providers()[0], "export_s": export_s,
                "onnx_mib": size_mib, "jax_compile_s": compile_s,

@@ -20,16 +20,16 @@ SUPPORTED_MODELS = ("DoubleSphere", "LinearSphere")
 
 def _shape(spec, where) -> tuple[int, int]:
     """shape_struct (H, W): positive and within the image-size bounds."""
-    ss = fmt.require(spec, "shape_struct", where, dict)
-    h = fmt.require(ss, "H", f"{where} shape_struct", int)
-    w = fmt.require(ss, "W", f"{where} shape_struct", int)
+    ss = fmt.document_field(spec, "shape_struct", where, dict)
+    h = fmt.document_field(ss, "H", f"{where} shape_struct", int)
+    w = fmt.document_field(ss, "W", f"{where} shape_struct", int)
     resolution([w, h], Where(f"{where} shape_struct"))
     return int(h), int(w)
 
 
 def _num(spec, key, where) -> float:
     """A finite number (JSON's NaN and Infinity are refused)."""
-    value = fmt.require(spec, key, where, (int, float))
+    value = fmt.document_field(spec, key, where, (int, float))
     return float(floats(value, 1, key, Where(where), "one finite number")[0])
 
 
@@ -51,7 +51,7 @@ class ReleaseCameraModel:
 
     def __init__(self, spec: dict, where: str):
         self.where = where
-        self.type = fmt.require(spec, "type", where, str)
+        self.type = fmt.document_field(spec, "type", where, str)
         self.height, self.width = _shape(spec, where)
         self.padding = "zeros"
         if self.type == "DoubleSphere":
@@ -128,7 +128,7 @@ def gijax_camera(spec: dict, where: str):
     fx = fy = W / fov_rad and the principal point at the image centre. Other release types
     (Equirectangular, Pinhole, Ocam) have no gijax camera model and are refused.
     """
-    kind = fmt.require(spec, "type", where, str)
+    kind = fmt.document_field(spec, "type", where, str)
     h, w = _shape(spec, where)
     if kind == "DoubleSphere":
         p = {k: _num(spec, k, where) for k in ("fx", "fy", "cx", "cy", "xi", "alpha")}

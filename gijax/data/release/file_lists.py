@@ -35,7 +35,7 @@ def partition_rows(root: Path, split: str, cameras: list[str], rgb_suffix: str =
             if where.is_dir():
                 meta_path = where / TRAJ_META
                 meta = fmt.load_json(meta_path, "trajectory metadata")
-                csv_name = fmt.require(meta, "selected_file_list", meta_path, str)
+                csv_name = fmt.document_field(meta, "selected_file_list", meta_path, str)
                 rows += csv_rows(where / csv_name, where, f"{env}/{name}", cameras, rgb_suffix,
                                  dist_suffix)
             elif str(name).endswith(".csv"):

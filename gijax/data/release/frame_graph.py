@@ -17,7 +17,7 @@ RELEASE_ROTATION_TOL = 1e-3
 
 def _num(spec, key, where) -> float:
     """A finite number (JSON's NaN and Infinity are refused)."""
-    value = fmt.require(spec, key, where, (int, float))
+    value = fmt.document_field(spec, key, where, (int, float))
     return float(floats(value, 1, key, Where(where), "one finite number")[0])
 
 
@@ -25,8 +25,8 @@ def _orientation(doc, where) -> np.ndarray:
     """A rotation matrix. The release uses a matrix as it is; one that is far from a rotation
     (beyond :data:`RELEASE_ROTATION_TOL`, looser than a calibration file's since these files
     print few digits) is refused, since every pose chained through it would be skewed."""
-    kind = fmt.require(doc, "type", where, str)
-    data = fmt.require(doc, "data", where, (list, dict))
+    kind = fmt.document_field(doc, "type", where, str)
+    data = fmt.document_field(doc, "data", where, (list, dict))
     if kind == "rotation_matrix":
         m = floats(data, 9, "data", Where(where), "9 numbers (row-major 3x3)").reshape(3, 3)
         err = float(np.abs(m.T @ m - np.eye(3)).max())
@@ -52,10 +52,11 @@ def _orientation(doc, where) -> np.ndarray:
 
 
 def _pose(doc, where) -> np.ndarray:
-    t = floats(fmt.require(doc, "position", where, list), 3, "position", Where(where),
+    t = floats(fmt.document_field(doc, "position", where, list), 3, "position", Where(where),
                "3 numbers in metres")
     T = np.eye(4)
-    T[:3, :3] = _orientation(fmt.require(doc, "orientation", where, dict), f"{where} orientation")
+    T[:3, :3] = _orientation(fmt.document_field(doc, "orientation", where, dict),
+                             f"{where} orientation")
     T[:3, 3] = t
     return T
 
@@ -66,24 +67,24 @@ class FrameGraph:
     def __init__(self, path: Path):
         self.path = path
         doc = fmt.load_json(path, "frame graph")
-        frames = fmt.require(doc, "frames", path, list)
-        typical = fmt.require(doc, "typical_poses", path, dict)
-        transforms = fmt.require(doc, "transforms", path, list)
+        frames = fmt.document_field(doc, "frames", path, list)
+        typical = fmt.document_field(doc, "typical_poses", path, dict)
+        transforms = fmt.document_field(doc, "transforms", path, list)
         self.edges: dict[str, dict[str, np.ndarray]] = collections.defaultdict(dict)
         for k, f in enumerate(frames):
-            name = fmt.require(f, "name", f"{path} frames[{k}]", str)
+            name = fmt.document_field(f, "name", f"{path} frames[{k}]", str)
             self.edges.setdefault(name, {})
         poses = {key: _pose(v, f"{path} typical_poses[{key!r}]") for key, v in typical.items()}
         for k, tr in enumerate(transforms):
             where = f"{path} transforms[{k}]"
-            f0 = fmt.require(tr, "f0", where, str)
-            f1 = fmt.require(tr, "f1", where, str)
-            pose = fmt.require(tr, "pose", where, dict)
-            kind = fmt.require(pose, "type", f"{where} pose", str)
+            f0 = fmt.document_field(tr, "f0", where, str)
+            f1 = fmt.document_field(tr, "f1", where, str)
+            pose = fmt.document_field(tr, "pose", where, dict)
+            kind = fmt.document_field(pose, "type", f"{where} pose", str)
             if kind == "create":
                 T = _pose(pose, f"{where} pose")
             elif kind == "reference":
-                key = fmt.require(pose, "key", f"{where} pose", str)
+                key = fmt.document_field(pose, "key", f"{where} pose", str)
                 if key not in poses:
                     raise ValueError(f"{where}: pose references typical_poses[{key!r}], which "
                                      f"does not exist; found {sorted(poses)}")

@@ -81,17 +81,17 @@ class ReleaseDatasetReader(RowReader):
 
         manifest_path = self.root / MANIFEST
         manifest = fmt.load_json(manifest_path, "manifest")
-        models = fmt.require(manifest, "camera_models", manifest_path, dict)
-        samplers = fmt.require(manifest, "samplers", manifest_path, list)
+        models = fmt.document_field(manifest, "camera_models", manifest_path, dict)
+        samplers = fmt.document_field(manifest, "samplers", manifest_path, list)
         model_of: dict[str, str] = {}
         for k, s in enumerate(samplers):
             where = f"{manifest_path} samplers[{k}]"
             if not isinstance(s, dict):
                 raise ValueError(f"{where}: must be an object; found {type(s).__name__}")
-            if fmt.require(s, "mvs_main_cam_model_for_cam", where, bool):
-                key = fmt.require(s, "mvs_cam_key", where, str)
-                sampler = fmt.require(s, "sampler", where, dict)
-                model_key = fmt.require(sampler, "cam_model_key", f"{where} sampler", str)
+            if fmt.document_field(s, "mvs_main_cam_model_for_cam", where, bool):
+                key = fmt.document_field(s, "mvs_cam_key", where, str)
+                sampler = fmt.document_field(s, "sampler", where, dict)
+                model_key = fmt.document_field(sampler, "cam_model_key", f"{where} sampler", str)
                 if model_key not in models:
                     raise ValueError(f"{where}: sampler cam_model_key {model_key!r} is not in "
                                      f"camera_models; found {sorted(models)}")
@@ -99,7 +99,7 @@ class ReleaseDatasetReader(RowReader):
 
         meta_path = self.root / METADATA
         meta = fmt.load_json(meta_path, "metadata")
-        cams = fmt.require(meta, "cams", meta_path, list)
+        cams = fmt.document_field(meta, "cams", meta_path, list)
         if not cams:
             raise ValueError(f"{meta_path}: field 'cams' is empty")
         self.names = [f"cam{k}" for k in range(len(cams))]
@@ -124,7 +124,7 @@ class ReleaseDatasetReader(RowReader):
             where = f"{meta_path} cams[{k}]"
             if not isinstance(cams[k], dict):
                 raise ValueError(f"{where}: must be an object; found {type(cams[k]).__name__}")
-            frame = fmt.require(cams[k], "image_frame", where, str)
+            frame = fmt.document_field(cams[k], "image_frame", where, str)
             cameras.append(gijax_camera(models[model_of[name]], f"{manifest_path} camera_models"
                                                                  f"[{model_of[name]!r}]"))
             T = graph.query(RIG_RAW_FRAME, frame, f"image_frame of {name}")
@@ -159,12 +159,12 @@ class ReleaseDatasetReader(RowReader):
         for field in ("masks", "masks_augmented"):
             if field == "masks_augmented" and field not in doc:
                 continue
-            entries = fmt.require(doc, field, path, list)
+            entries = fmt.document_field(doc, field, path, list)
             found[field] = {}
             for k, e in enumerate(entries):
                 where = f"{path} {field}[{k}]"
-                cam = fmt.require(e, "raw_camera", where, str)
-                found[field][cam] = self.root / fmt.require(e, "mask", where, str)
+                cam = fmt.document_field(e, "raw_camera", where, str)
+                found[field][cam] = self.root / fmt.document_field(e, "mask", where, str)
         missing = [n for n in self.names if n not in found["masks"]]
         if missing:
             raise ValueError(f"{path}: field 'masks' has no entry for camera(s) {missing} "
