@@ -58,8 +58,8 @@ from experiments.arguments import add_common_arguments, resolve_paths  # noqa: E
 from experiments.evaluation import (cached_evaluation, net_predictor, rtss_predictor,  # noqa: E402
                                     weights_id)
 from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
-from experiments.reporting import (fmt, log, publish_section, save_figure, save_png,  # noqa: E402
-                                   save_table)
+from experiments.reporting import (check_results_section, fmt, log,  # noqa: E402
+                                   publish_section, save_figure, save_png, save_table)
 from experiments.scales import DATA_STYLE, SCALES, Scale, model_overrides, preset_name  # noqa: E402
 from experiments.workfolder import (dataset_seeds, ensure_dataset, gijax_command,  # noqa: E402
                                     metrics_records, render_recorded, rig_file_argument,
@@ -475,6 +475,11 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
     lenses = sum(1 for d in mix if d["role"].startswith("mix-lens-"))
     layouts = sum(1 for d in mix if d["role"].startswith("mix-layout-"))
     init = trained.get("init")
+    # The bundle holds the best validated checkpoint, which can be older than the last step.
+    vals = [r for r in records if r.get("split") == "val"]
+    best = min(vals, key=lambda r: r["mae"]) if vals else None
+    kept = (f"these weights: step {best['step']}, the best validation MAE ({best['mae']:.4f})"
+            if best else "these weights: the newest checkpoint (no validation)")
     start = ("random weights" if not init else
              f"the bundled {init['model']} of revision {init['git_revision']} (weights "
              f"sha256 {init['weights_sha256_12']}...; its own PROVENANCE.json there says how "
@@ -485,7 +490,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"{layouts} random 3-4 camera layouts 0.25-0.8 m apart through drawn "
                           f"lenses (equidistant, Kannala-Brandt, Double Sphere, 180-240 deg); "
                           f"training: {trained.get('trained_steps', recipe.steps)} steps of "
-                          f"{recipe.batch}, augmentation "
+                          f"{recipe.batch} ({kept}), augmentation "
                           f"{recipe.augment}, calibration errors up to "
                           f"{recipe.calibration_deg:g} deg, starting from {start}"),
            "initialised_from": init,
@@ -498,8 +503,9 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
            "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "models", "spacing_m",
                                        "cameras", "samples", "seed") if k in d} for d in data],
            "runs": run_pieces(records),
-           "checkpoint": "best by validation MAE",
-           "validation": [r for r in records if r.get("split") == "val"],
+           "checkpoint": (f"step {best['step']}, the best by validation MAE" if best
+                          else "the newest (no validation)"),
+           "validation": vals,
            "validation_metrics": "gijax definitions (labels clamped to the candidate range, "
                                  "pooled pixels)",
            "targets": targets, "learning_curve": "learning_curve.png",
@@ -564,6 +570,8 @@ def main(argv=None) -> int:
     # The long training reports in its own section; the fine-tuning recipe in the bundle's.
     name = NAME if args.recipe == "finetune" else LONG_NAME
     work, out, results = resolve_paths(args, name)
+    if results is not None:
+        check_results_section(results, name)
     plan = (Plan("long", args.design, long_pack_folder(scale, args.design, out))
             if args.recipe == "long" else FINETUNE)
     started, durations = time.time(), {}

@@ -43,12 +43,20 @@ def save_table(out_stem: Path, title: str, markdown_body: str, doc: dict) -> Non
     write_text(out_stem.with_suffix(".md"), f"# {title}\n\n{markdown_body}\n")
 
 
-def update_results_section(results_md: Path, section: str, body: str) -> None:
-    """Replace the text between ``<!-- section:begin -->`` and ``<!-- section:end -->``."""
+def check_results_section(results_md: Path, section: str) -> None:
+    """ValueError unless ``results_md`` holds the markers of ``section``: a script checks
+    this before its work, so a missing section costs no rerun."""
     text = results_md.read_text()
     begin, end = f"<!-- {section}:begin -->", f"<!-- {section}:end -->"
     if begin not in text or end not in text:
         raise ValueError(f"{results_md} has no '{begin}' ... '{end}' markers")
+
+
+def update_results_section(results_md: Path, section: str, body: str) -> None:
+    """Replace the text between ``<!-- section:begin -->`` and ``<!-- section:end -->``."""
+    check_results_section(results_md, section)
+    text = results_md.read_text()
+    begin, end = f"<!-- {section}:begin -->", f"<!-- {section}:end -->"
     head, rest = text.split(begin, 1)
     _, tail = rest.split(end, 1)
     write_text(results_md, f"{head}{begin}\n{body.strip()}\n{end}{tail}")
