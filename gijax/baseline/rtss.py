@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gijax.checks import bad_field
 from gijax.baseline.camera_select import item_at, select_best_camera, sweep_coords
 from gijax.baseline.cost_filter import edge_aware_filter
 from gijax.baseline.matching_cost import COST_KINDS, matching_cost
@@ -96,16 +97,16 @@ class RTSSConfig:
 
     def __post_init__(self):
         if self.candidates not in ("ev", "gi"):
-            raise ValueError(f"RTSSConfig.candidates must be 'ev' or 'gi'; found {self.candidates!r}")
+            raise bad_field("RTSSConfig", "candidates", "'ev' or 'gi'", self.candidates)
         if self.num_candidates < 3:
-            raise ValueError(f"RTSSConfig.num_candidates must be >= 3; found {self.num_candidates}")
+            raise bad_field("RTSSConfig", "num_candidates", ">= 3", self.num_candidates)
         if not 0 < self.d_min < self.d_max:
-            raise ValueError(f"RTSSConfig needs 0 < d_min < d_max; found {self.d_min}, {self.d_max}")
+            raise bad_field("RTSSConfig", "d_min", f"in (0, d_max = {self.d_max})", self.d_min)
         if self.cost not in COST_KINDS:
-            raise ValueError(f"RTSSConfig.cost must be one of {COST_KINDS}; found {self.cost!r}")
+            raise bad_field("RTSSConfig", "cost", f"one of {COST_KINDS}", self.cost)
         if self.cost_window < 1 or self.cost_window % 2 == 0:
-            raise ValueError(f"RTSSConfig.cost_window must be a positive odd number of pixels; "
-                             f"found {self.cost_window}")
+            raise bad_field("RTSSConfig", "cost_window", "a positive odd number of pixels",
+                            self.cost_window)
         if self.stitch_samples < 2:
             raise ValueError(f"RTSSConfig.stitch_samples must be >= 2; found {self.stitch_samples}")
         MatchView(self.match_view, self.match_size)

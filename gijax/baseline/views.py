@@ -20,6 +20,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from gijax.checks import bad_field
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.panorama import Panorama, direction_to_pixel, ray_grid
 from gijax.sampling import bilinear_sample
@@ -37,9 +38,9 @@ class MatchView:
 
     def __post_init__(self):
         if self.kind not in VIEW_KINDS:
-            raise ValueError(f"match view kind {self.kind!r}; expected one of {VIEW_KINDS}")
+            raise bad_field("MatchView", "kind", f"one of {VIEW_KINDS}", self.kind)
         if int(self.size) < 8:
-            raise ValueError(f"match view size must be at least 8 pixels; found {self.size}")
+            raise bad_field("MatchView", "size", "at least 8 pixels", self.size)
 
 
 def _panorama(view: MatchView) -> Panorama:

@@ -59,6 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from gijax.checks import bad_field
 from gijax.data.photometric import gaussian_blur
 from gijax.evaluate.labels import usable_label
 from gijax.geometry import cameras as cam_lib
@@ -118,14 +119,15 @@ class RefineConfig:
     min_overlap: float = 0.05
 
     def __post_init__(self):
-        if int(self.steps) < len(self.blur) or not self.blur:
-            raise ValueError(f"RefineConfig.steps must be at least one per blur level "
-                             f"({len(self.blur)}); found {self.steps}")
-        if any(not s > 0 for s in self.blur):
-            raise ValueError(f"RefineConfig.blur sigmas must be > 0 pixels; found {self.blur}")
+        if not self.blur or any(not s > 0 for s in self.blur):
+            raise bad_field("RefineConfig", "blur", "sigmas > 0 pixels (at least one)",
+                            self.blur)
+        if int(self.steps) < len(self.blur):
+            raise bad_field("RefineConfig", "steps",
+                            f"at least one per blur level ({len(self.blur)})", self.steps)
         for name in ("lr_rotation", "lr_translation", "lr_focal", "lr_centre", "lr_depth"):
             if not getattr(self, name) > 0:
-                raise ValueError(f"RefineConfig.{name} must be > 0; found {getattr(self, name)}")
+                raise bad_field("RefineConfig", name, "> 0", getattr(self, name))
 
     def replace(self, **kw) -> "RefineConfig":
         return dataclasses.replace(self, **kw)

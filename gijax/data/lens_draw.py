@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from gijax.checks import bad_field
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.rig import Rig, with_occlusion_masks
 
@@ -59,11 +60,12 @@ class LensDraw:
     def __post_init__(self):
         lo, hi = self.fov_deg
         if not 0.0 < lo <= hi < 360.0:
-            raise ValueError(f"LensDraw.fov_deg must satisfy 0 < low <= high < 360; found "
-                             f"{self.fov_deg}")
+            raise bad_field("LensDraw", "fov_deg", "(low, high) with 0 < low <= high < 360",
+                            self.fov_deg)
         lo, hi = self.circle
         if not 0.0 < lo <= hi:
-            raise ValueError(f"LensDraw.circle must satisfy 0 < low <= high; found {self.circle}")
+            raise bad_field("LensDraw", "circle", "(low, high) with 0 < low <= high",
+                            self.circle)
 
 
 def unit_radius(model: str, shape: dict, theta: Array) -> Array:

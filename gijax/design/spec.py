@@ -16,6 +16,7 @@ import math
 import jax
 import jax.numpy as jnp
 
+from gijax.checks import bad_field
 from gijax.geometry.layouts import FOCAL, FOV_DEG, IMAGE_SIZE, LIDAR_HEIGHT, LIDAR_RADIUS
 from gijax.geometry.panorama import Panorama
 
@@ -86,7 +87,7 @@ class DesignSpec:
 
     def __post_init__(self):
         def bad(field, expected, found):
-            raise ValueError(f"DesignSpec.{field} must be {expected}; found {found!r}")
+            raise bad_field("DesignSpec", field, expected, found)
 
         if isinstance(self.num_cameras, bool) or not isinstance(self.num_cameras, int) \
                 or self.num_cameras < 2:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from gijax.checks import bad_field
 from gijax.nn.layers import CONV3D_LOWERINGS
 
 _CANDIDATE_KINDS = ("ev", "gi")
@@ -117,9 +118,7 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
-            raise ValueError(
-                f"ModelConfig {self.name!r}: field {field!r} expected {expected}, found {found!r}"
-            )
+            raise bad_field(f"ModelConfig {self.name!r}", field, expected, found)
 
         for field, allowed in (
             ("candidates", _CANDIDATE_KINDS),

@@ -34,6 +34,7 @@ import numpy as np
 import optax
 from flax import nnx
 
+from gijax.checks import bad_field
 from gijax.candidates.parametrisation import candidates_from_logits, logits_from_candidates
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig
@@ -81,13 +82,12 @@ class AdaptConfig:
 
     def __post_init__(self):
         if self.loss not in LOSSES:
-            raise ValueError(f"AdaptConfig.loss {self.loss!r}; expected one of {LOSSES}")
+            raise bad_field("AdaptConfig", "loss", f"one of {LOSSES}", self.loss)
         for field in ("steps", "batch_size", "checkpoint_every"):
             if int(getattr(self, field)) < 1:
-                raise ValueError(f"AdaptConfig.{field} must be >= 1; found "
-                                 f"{getattr(self, field)}")
+                raise bad_field("AdaptConfig", field, ">= 1", getattr(self, field))
         if not self.lr > 0:
-            raise ValueError(f"AdaptConfig.lr must be > 0; found {self.lr}")
+            raise bad_field("AdaptConfig", "lr", "> 0", self.lr)
 
 
 @dataclasses.dataclass

@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 from typing import Any, Optional
 
+from gijax.checks import bad_field
 from gijax.io.paths import write_text_atomic
 from gijax.nn.presets import ModelConfig, get_preset
 from gijax.store.configs import CONFIG_FILE, read_run_config, run_config_document
@@ -115,7 +116,7 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         def fail(field, expected, found):
-            raise ValueError(f"TrainConfig field {field!r}: expected {expected}, found {found!r}")
+            raise bad_field("TrainConfig", field, expected, found)
 
         if self.schedule not in SCHEDULES:
             fail("schedule", f"one of {SCHEDULES}", self.schedule)
@@ -160,8 +161,8 @@ class TrainConfig:
         from gijax.train.unlabeled import LabelFree
 
         if not isinstance(self.label_free, dict):
-            raise ValueError(f"TrainConfig field 'label_free': expected a dict of weights or "
-                             f"null, found {self.label_free!r}")
+            raise bad_field("TrainConfig", "label_free", "a dict of weights or null",
+                            self.label_free)
         return LabelFree.from_dict(self.label_free)
 
     def to_dict(self) -> dict:

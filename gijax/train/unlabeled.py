@@ -27,6 +27,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from gijax.checks import bad_field
 from gijax.geometry.panorama import Panorama, direction_to_pixel
 from gijax.geometry.panorama_frame import panorama_rays
 from gijax.geometry.rig import Rig
@@ -197,14 +198,12 @@ class LabelFree:
             value = getattr(self, field)
             if (isinstance(value, bool) or not isinstance(value, (int, float))
                     or not value >= 0 or value == float("inf")):
-                raise ValueError(f"label-free weight {field!r} must be a number >= 0; "
-                                 f"found {value!r}")
+                raise bad_field("LabelFree", field, "a finite number >= 0 (a weight)", value)
         if not (self.photometric or self.smoothness or self.teacher):
             raise ValueError("label-free objective: every weight is 0; give the photometric, "
                              "smoothness or teacher term a positive weight")
         if not isinstance(self.normalize_gain, bool):
-            raise ValueError(f"label-free field 'normalize_gain' must be true or false; found "
-                             f"{self.normalize_gain!r}")
+            raise bad_field("LabelFree", "normalize_gain", "true or false", self.normalize_gain)
         if self.smoothness and not (self.photometric or self.teacher):
             raise ValueError("label-free objective: smoothness alone has a trivial minimum "
                              "(a constant map); give the photometric or teacher term a weight")
