@@ -163,8 +163,8 @@ def test_objective_never_reads_labels_and_weighs_its_terms(sphere):
                                + 0.1 * float(terms["teacher"]), rtol=1e-6)
     with pytest.raises(ValueError, match="every weight is 0"):
         LabelFree(photometric=0.0, smoothness=0.0)
-    with pytest.raises(ValueError,
-                       match=r"LabelFree\.teacher must be a finite number >= 0 \(a weight\); found -1"):
+    with pytest.raises(ValueError, match=r"LabelFree\.teacher must be a finite number >= 0 "
+                                         r"\(a weight\); found -1"):
         LabelFree(teacher=-1.0)
 
 
