@@ -130,6 +130,10 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     res = json.loads(out_json.read_text())
     assert res["metric_set"] == "paper" and "torchmetrics" in res["metric_definitions"]
     assert res["samples"] == 2 and res["time_ms_per_sample"] > 0 and res["host_peak_mb"] > 0
+    # Each scene's own metrics: the paper's MAE is their mean over samples.
+    assert len(res["per_scene"]) == 2
+    assert res["mae"] == pytest.approx(np.mean([s["mae"] for s in res["per_scene"]]), rel=1e-6)
+    assert res["per_scene"][0]["mae"] != res["per_scene"][1]["mae"]
     # the best checkpoint, evaluated again with the training's (gijax) definitions, reproduces
     # the validation MAE logged in training
     assert main(["eval", "--ckpt", str(run), "--data", str(tmp_path / "val"), "--metrics",
@@ -470,8 +474,10 @@ def test_a_run_started_from_a_trained_model_takes_its_weights_with_a_fresh_optim
     b.fit()
     b.close()
 
-    # The cost volume at the output's size (output_stride 1) resizes no weight: accepted.
-    fine = dict(TINY, cost_hw=list(TINY["output_hw"]), output_stride=1)
+    # The cost volume at the output's size (output_stride 1), the full sphere and another
+    # input scale resize no weight: accepted.
+    fine = dict(TINY, cost_hw=list(TINY["output_hw"]), output_stride=1, panorama="sphere",
+                image_scale=0.5 * TINY.get("image_scale", 1.0))
     f = Trainer(_config(model_overrides=fine, steps=1, init_from=str(tmp_path / "a")),
                 tmp_path / "f", tiny_rig(), stream, None, progress=False)
     for x, y in zip(jax.tree.leaves(a_params), jax.tree.leaves(f.local_variables()[0])):

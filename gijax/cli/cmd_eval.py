@@ -68,7 +68,9 @@ def register(subparsers) -> None:
                         "(clamped labels, pooled pixels, fixed-range SSIM; the validation "
                         "metric of 'gijax train')")
     p.add_argument("--json", default=None, help="write the results to this JSON file "
-                                                 "(records the metric definitions used)")
+                                                 "(records the metric definitions used, and "
+                                                 "each sample's metrics under 'per_scene' for "
+                                                 "paired comparisons)")
     p.add_argument("--allow-partial", action="store_true",
                    help="evaluate on a dataset holding fewer samples than its manifest requests")
     p.add_argument("--no-progress", action="store_true",
@@ -173,7 +175,10 @@ def run(args) -> int:
               "candidates_spec": args.candidates or "default", "candidates_how": how,
               "candidates": [float(c) for c in cand], **metrics,
               "time_ms_per_sample": 1000.0 * float(np.mean(times)),
-              "device": str(jax.local_devices()[0]), "host_peak_mb": host_peak_rss_mib()}
+              "device": str(jax.local_devices()[0]), "host_peak_mb": host_peak_rss_mib(),
+              # Each sample's own metrics, in dataset order, so that two methods can be
+              # compared scene by scene (a paired test) without evaluating again.
+              "per_scene": evaluation.per_scene(args.metrics)}
     device_peak = device_peak_mib()
     if device_peak is not None:
         result["device_peak_mb"] = device_peak

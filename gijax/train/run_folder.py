@@ -154,7 +154,8 @@ def newer_pack(run_dir: Path, config: TrainConfig, mc: ModelConfig, candidates,
 
 def initial_variables(config: TrainConfig, mc: ModelConfig, params, rest):
     """``(params, rest)`` of the model ``config.init_from`` names, checked against this run's
-    network ``mc``: same configuration (up to the conv lowering and resolution) and variable
+    network ``mc``: same configuration (up to the conv lowering, resolution, panorama coverage and
+    input scale) and variable
     shapes as ``params`` and ``rest``."""
     from flax import nnx
 
@@ -163,9 +164,11 @@ def initial_variables(config: TrainConfig, mc: ModelConfig, params, rest):
 
     spec = config.init_from
     model, found, _ = load_model(spec)
-    # Fields that resize the cost volume and output, not any weight: a model trained at one
-    # resolution starts a run at another (e.g. G16VV-cpu -> G16VV-cpu-fine).
-    resolution = {"name", "conv3d", "cost_hw", "output_hw", "output_stride"}
+    # Fields that change what the network is applied to, not any weight: a model trained at one
+    # resolution, coverage or input scale starts a run at another (G16VV-cpu -> G16VV-cpu-fine;
+    # a hemisphere model fine-tuned on a full-sphere rig; a small rig's images at full size).
+    resolution = {"name", "conv3d", "cost_hw", "output_hw", "output_stride", "panorama",
+                  "image_scale"}
     same = {f.name: getattr(mc, f.name) for f in dataclasses.fields(found)
             if f.name in resolution}
     if dataclasses.replace(found, **same) != mc:
