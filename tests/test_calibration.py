@@ -200,7 +200,7 @@ def test_bad_gijax_file(tmp_path, case):
     with pytest.raises(ValueError) as exc:
         load_rig(path)
     msg = str(exc.value)
-    assert str(path) in msg and f"'{field}'" in msg and "expected" in msg
+    assert str(path) in msg and f"'{field}'" in msg and " must be " in msg and "; found " in msg
     if case != "zero cameras":
         assert "camera 'a'" in msg
 

@@ -290,12 +290,14 @@ def test_manifest_errors(dataset, tmp_path):
     doc = json.loads(good)
     del doc["trajectories"]
     manifest.write_text(json.dumps(doc))
-    with pytest.raises(ValueError, match=r"manifest\.json: missing field 'trajectories'"):
+    with pytest.raises(ValueError, match=r"manifest\.json: field 'trajectories' must be a list; "
+                       r"found nothing \(the field is missing\)$"):
         DatasetReader(root)
     doc = json.loads(good)
     doc["trajectories"][1] = {"name": "traj_0001"}
     manifest.write_text(json.dumps(doc))
-    with pytest.raises(ValueError, match=r"trajectories\[1\]: missing field 'file_list'"):
+    with pytest.raises(ValueError, match=r"trajectories\[1\]: field 'file_list' must be a string; "
+                       r"found nothing \(the field is missing\)$"):
         DatasetReader(root)
 
 

@@ -34,6 +34,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from gijax.checks import MISSING, bad_document_field, kind_name, kind_of
 from gijax.geometry import cameras as cam_lib
 from gijax.geometry.occluder import FAR, Cylinder
 from gijax.geometry.panorama import Panorama
@@ -99,15 +100,14 @@ def load_json(path: str | os.PathLike, what: str) -> dict:
 def document_field(doc: dict, key: str, path, kind: type | tuple = object) -> Any:
     """``doc[key]``, raising a ValueError naming the file and the field when absent or mistyped
     (or when ``doc`` is no JSON object)."""
+    expected = "present" if kind is object else kind_name(kind)
     if not isinstance(doc, dict):
-        raise ValueError(f"{path}: expected an object holding field {key!r}; found "
-                         f"{type(doc).__name__}")
+        raise bad_document_field(path, key, f"{expected} in a JSON object", kind_of(doc))
     if key not in doc:
-        raise ValueError(f"{path}: missing field {key!r}")
+        raise bad_document_field(path, key, expected, MISSING)
     value = doc[key]
     if not isinstance(value, kind):
-        names = kind.__name__ if isinstance(kind, type) else "/".join(k.__name__ for k in kind)
-        raise ValueError(f"{path}: field {key!r} must be {names}; found {type(value).__name__}")
+        raise bad_document_field(path, key, expected, kind_of(value))
     return value
 
 
@@ -235,7 +235,7 @@ def _number(value, key: str, path) -> float:
     ValueError naming the file and the field otherwise."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
             abs(value) <= np.finfo(np.float32).max):
-        raise ValueError(f"{path}: field {key!r} must be a finite number; found {value!r}")
+        raise bad_document_field(path, key, "a finite number", value)
     return float(value)
 
 

@@ -1,7 +1,7 @@
 """Checked reading of rig-file fields, shared by every format (gijax YAML, Kalibr, basalt).
 
 Every malformed value raises one ``ValueError`` naming the file, the camera, the field and what
-was expected (:class:`Where` builds the message). Calibration files print about 8-10 digits, so
+was expected (:class:`Where` builds :func:`gijax.checks.bad_document_field`'s message). Calibration files print about 8-10 digits, so
 rotations are checked against :data:`ORTHONORMAL_TOL`, and all arithmetic here is float64: the
 rig is rounded to float32 once, at the end.
 """
@@ -13,6 +13,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from gijax.checks import MISSING, bad_document_field
 from gijax.geometry.cameras import make_camera
 from gijax.io.bounds import CAMERA_BYTES_PER_PIXEL, check_size
 from gijax.geometry.rig import Rig, make_rig
@@ -32,10 +33,8 @@ class Where:
         return Where(self.path, camera)
 
     def error(self, field: str, expected: str, found: Any) -> ValueError:
-        where = f"{self.path}"
-        if self.camera is not None:
-            where += f": camera {self.camera!r}"
-        return ValueError(f"{where}: field {field!r}: expected {expected}, found {found!r}")
+        within = None if self.camera is None else f"camera {self.camera!r}"
+        return bad_document_field(self.path, field, expected, found, within=within)
 
 
 def mapping_field(d: dict, key: str, where: Where, expected: str):
@@ -43,7 +42,7 @@ def mapping_field(d: dict, key: str, where: Where, expected: str):
     if not isinstance(d, dict):
         raise where.error(key, f"a mapping containing {key!r}", d)
     if key not in d:
-        raise where.error(key, expected, "nothing (the field is missing)")
+        raise where.error(key, expected, MISSING)
     return d[key]
 
 

@@ -33,6 +33,7 @@ from typing import Any, Optional
 import jax
 import numpy as np
 
+from gijax.checks import MISSING, bad_document_field, kind_of
 from gijax.io.paths import atomic_path, write_text_atomic
 from gijax.store.configs import METRICS_FILE
 
@@ -110,19 +111,19 @@ def read_pack(folder: str | os.PathLike) -> Optional[Pack]:
         meta = json.loads(doc_path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"{doc_path}: not a readable resume pack ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ValueError(f"{doc_path}: field 'format' expected {FORMAT!r}, found "
-                         f"{meta.get('format') if isinstance(meta, dict) else type(meta).__name__!r}")
+    if not isinstance(meta, dict):
+        raise bad_document_field(doc_path, "format", f"{FORMAT!r} in a JSON object",
+                                 kind_of(meta))
+    if meta.get("format") != FORMAT:
+        raise bad_document_field(doc_path, "format", repr(FORMAT), meta.get("format", MISSING))
     if meta.get("version") != VERSION:
-        raise ValueError(f"{doc_path}: field 'version' expected {VERSION}, found "
-                         f"{meta.get('version')!r}")
+        raise bad_document_field(doc_path, "version", str(VERSION), meta.get("version", MISSING))
     for field in ("step", "state_file", "state_sha256"):
         if field not in meta:
-            raise ValueError(f"{doc_path}: field {field!r} is missing")
+            raise bad_document_field(doc_path, field, "present", MISSING)
     name = str(meta["state_file"])
     if Path(name).name != name or not name.endswith(".npz"):
-        raise ValueError(f"{doc_path}: field 'state_file' expected a file name in the pack, "
-                         f"found {name!r}")
+        raise bad_document_field(doc_path, "state_file", "a .npz file name in the pack", name)
     state_path = folder / name
     if not state_path.is_file():
         raise ValueError(f"{state_path}: the state file that {doc_path} names is missing")
