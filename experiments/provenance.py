@@ -10,8 +10,9 @@ from pathlib import Path
 from experiments.scales import DATA_SEEDS, DATA_STYLE, Scale
 
 ROOT = Path(__file__).resolve().parents[1]
-# Files the scripts rewrite themselves: changing them does not make the source revision dirty.
-OWN_OUTPUTS = ("experiments/results", "experiments/RESULTS.md")
+# Files the scripts rewrite themselves: changing them does not make the source revision dirty
+# (a long training rewrites its resume pack while other experiments run beside it).
+OWN_OUTPUTS = ("experiments/results", "experiments/RESULTS.md", "experiments/packs")
 
 
 def revision() -> str:

@@ -580,3 +580,40 @@ def test_network_adaptation_commands_parse_and_claims_compare_scene_by_scene(tmp
     assert holds and p["scenes"] == 2 and p["lower"] == 2 and abs(p["mean"] + 0.005) < 1e-12
     p, holds = out[f"teacher vs {na.TEACHER}"]
     assert not holds and p["scenes"] == 3 and abs(p["mean"] - 0.01 / 3) < 1e-12
+
+
+def test_example_rig_commands_parse_and_compare_scene_by_scene():
+    """The example-rig experiment's recorded commands are ones gijax's own parser accepts with
+    the recipe's values (the fine-tuning reads images at the rendered scale); its comparisons
+    pair the scenes of two methods' ``gijax eval --json`` and say whether the mean is lower."""
+    import shlex
+
+    from experiments import example_rig as ex
+    from gijax.cli import build_parser
+
+    cfg = ex.SCALES["cpu"]
+    parse = build_parser().parse_args
+    args = parse(shlex.split(ex.gijax_command(ex.train_argv(cfg)))[1:])
+    assert (args.preset, args.init_from, args.steps, args.batch, args.lr) == (
+        ex.MODEL, ex.MODEL, cfg["steps"], cfg["batch"], cfg["lr"])
+    assert args.override == [("image_scale", cfg["image_scale"])]
+    args = parse(shlex.split(ex.gijax_command(ex.render_argv(cfg, "test")))[1:])
+    assert (args.samples, args.seed, args.scale) == (cfg["test"], ex.SEEDS["test"],
+                                                    cfg["image_scale"])
+    assert len(set(ex.SEEDS.values())) == 3            # held-out scenes share no seed
+    for method in ("after", ex.BASELINE):
+        args = parse(shlex.split(ex.gijax_command(ex.eval_argv(method, "runs/x", "e.json")))[1:])
+        assert args.method == ("rtss" if method == ex.BASELINE else "learned")
+        args = parse(shlex.split(ex.gijax_command(ex.predict_argv(method, "runs/x", "p")))[1:])
+        assert len(args.images) == len(ex.CAMERAS)
+
+    def row(maes):
+        return {"mae": float(np.mean(maes)), "per_scene": [{"mae": m} for m in maes]}
+
+    rows = {"before": row([0.20, 0.30, 0.25]), "after": row([0.04, 0.06, 0.02]),
+            ex.BASELINE: row([0.05, 0.05, 0.05])}
+    out = {t: (p, h) for t, p, h in ex.comparisons(rows)}
+    p, holds = out[f"after vs {ex.BASELINE}"]
+    assert holds and p["scenes"] == 3 and p["lower"] == 2 and abs(p["mean"] + 0.01) < 1e-12
+    p, holds = out[f"before vs {ex.BASELINE}"]
+    assert not holds and p["lower"] == 0
