@@ -9,8 +9,8 @@ layers, never a unit of its own layer or a higher one:
 
 ==  =========================================  ==============================================
  0  gijax (the package root: ``__version__``)
- 1  numerics, checks                           guarded elementary operations; the one message
-                                               of a bad configuration value
+ 1  numerics, checks, random_streams           guarded elementary operations; the one message
+                                               of a bad value; the named random streams
  2  geometry                                   cameras, rotations, rigs, panoramas, layouts
  3  io                                         rig and calibration files, locks, output paths
  4  candidates                                 EV / GI candidate lists and specs
@@ -50,7 +50,7 @@ PACKAGE = ROOT / "gijax"
 
 LAYERS = (
     ("gijax",),
-    ("numerics", "host_memory", "checks"),
+    ("numerics", "host_memory", "checks", "random_streams"),
     ("geometry",),
     ("io",),
     ("candidates",),

@@ -7,10 +7,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gijax.data.augment import augment_masks, augmentation_rng, erase_rectangle
+from gijax.data.augment import augment_masks, erase_rectangle
 from gijax.data.loader import Loader
 from gijax.evaluate.labels import usable_label
 from gijax.data.reader import DatasetReader
+from gijax.random_streams import host_rng
 from gijax.data.writer import write_dataset
 from gijax.geometry.panorama import Panorama
 from gijax.sweep.surrogate import surrogate_images
@@ -190,7 +191,7 @@ def test_augment_masks_one_camera_rectangle(reader):
     images = s["images"].astype(np.float32) / 255
     masks = s["masks"].astype(np.float32)
     out_i, out_m, (cam, top, left, rh, rw) = augment_masks(images, masks,
-                                                          augmentation_rng(7, 2, 3))
+                                                          host_rng(7, "erase", 2, 3))
     changed = [c for c in range(3) if not np.array_equal(out_m[c], masks[c])]
     assert changed == [cam] or (changed == [] and masks[cam][top:top + rh,
                                                               left:left + rw].max() == 0)
@@ -201,8 +202,8 @@ def test_augment_masks_one_camera_rectangle(reader):
     for c in set(range(3)) - {cam}:
         np.testing.assert_array_equal(out_i[c], images[c])
     assert 0.05 * SIZE * SIZE * 0.8 <= rh * rw <= 0.2 * SIZE * SIZE * 1.2
-    again = augment_masks(images, masks, augmentation_rng(7, 2, 3))[2]
-    other = [augment_masks(images, masks, augmentation_rng(7, e, 3))[2] for e in range(3, 8)]
+    again = augment_masks(images, masks, host_rng(7, "erase", 2, 3))[2]
+    other = [augment_masks(images, masks, host_rng(7, "erase", e, 3))[2] for e in range(3, 8)]
     assert again == (cam, top, left, rh, rw)
     assert any(o != again for o in other)
     np.testing.assert_array_equal(masks, s["masks"])  # inputs untouched

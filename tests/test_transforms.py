@@ -67,7 +67,7 @@ pytestmark = pytest.mark.usefixtures("quick_compiles")
 COVERED_PACKAGES = ("gijax.geometry", "gijax.candidates", "gijax.sweep", "gijax.baseline",
                     "gijax.design", "gijax.nn", "gijax.calibrate", "gijax.evaluate")
 COVERED_MODULES = ("gijax.train.losses", "gijax.sampling",
-                   "gijax.numerics", "gijax.data.augment", "gijax.data.photometric",
+                   "gijax.numerics", "gijax.random_streams", "gijax.data.augment", "gijax.data.photometric",
                    "gijax.render.views", "gijax.render.random_scene")
 SEEDS = (0, 1)
 
@@ -203,12 +203,13 @@ NOT_TRACED = {
     "gijax.nn.spherical.sampling_tables": "NumPy constant of static offsets",
     "gijax.nn.spherical.zero_padded_tables": "NumPy constant of static positions",
     "gijax.nn.spherical.transposed_tables": "NumPy constant of static tables",
-    # augmentation: the NumPy mask stream and its seeding, and config lookup
-    "gijax.data.augment.augmentation_rng": "NumPy generator of integer seeds",
+    # the named random streams (host-side seeding) and augmentation's NumPy mask edits
+    "gijax.random_streams.entropy": "Python integers of integer seeds",
+    "gijax.random_streams.host_rng": "NumPy generator of integer seeds",
+    "gijax.random_streams.device_key": "a key from integer seeds (NumPy SeedSequence)",
     "gijax.data.augment.erase_rectangle": "NumPy mask edit from a NumPy generator",
     "gijax.data.augment.augment_masks": "NumPy mask augmentation from a NumPy generator",
     "gijax.data.augment.augment_preset": "config lookup by name",
-    "gijax.data.augment.augmentation_key": "a key from integer seeds (NumPy SeedSequence)",
     "gijax.data.photometric.dct_matrix": "NumPy constant of a static size",
 }
 

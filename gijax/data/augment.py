@@ -27,15 +27,6 @@ from gijax.data.body_masks import BodyShape, body_occlusion, body_outline
 
 AREA_FRACTION = (0.05, 0.20)
 ASPECT = (0.3, 3.3)
-# Mixed into the random stream so that augmentation draws never coincide with shuffling draws.
-_MASK_STREAM = 0x6D61736B
-
-
-def augmentation_rng(seed: int, epoch: int, index: int) -> np.random.Generator:
-    """The generator behind the augmentation of sample ``index`` in ``epoch``."""
-    return np.random.default_rng([int(seed), int(epoch), int(index), _MASK_STREAM])
-
-
 def erase_rectangle(rng: np.random.Generator, height: int, width: int,
                     area_fraction=AREA_FRACTION, aspect=ASPECT) -> tuple[int, int, int, int]:
     """A random rectangle (top, left, rect_height, rect_width) inside a height x width image.
@@ -64,7 +55,7 @@ def augment_masks(images, masks, rng: np.random.Generator):
     Args:
       images: per camera float (h, w, 3) (an (N, h, w, 3) array or a list).
       masks: per camera (h, w) in {0, 1}.
-      rng: from :func:`augmentation_rng`.
+      rng: the sample's ``"erase"`` stream (:func:`gijax.random_streams.host_rng`).
 
     Returns new ``images``, ``masks`` (the inputs are not modified) and the chosen
     ``(camera, top, left, rect_height, rect_width)``.
@@ -88,9 +79,6 @@ def augment_masks(images, masks, rng: np.random.Generator):
 
 
 # -- photometric and body-outline augmentation (pure JAX)
-
-_PIXEL_STREAM = 0x70697863
-
 
 @dataclasses.dataclass(frozen=True)
 class AugmentConfig:
@@ -143,13 +131,6 @@ def augment_preset(name: str) -> AugmentConfig:
     if name not in AUGMENT_PRESETS:
         raise ValueError(f"unknown augmentation {name!r}; choose one of {sorted(AUGMENT_PRESETS)}")
     return AUGMENT_PRESETS[name]
-
-
-def augmentation_key(seed: int, epoch: int, index: int) -> jax.Array:
-    """The PRNG key of :func:`augment_sample` for sample ``index`` in ``epoch`` (a stream apart
-    from the mask augmentation's and the shuffling's)."""
-    state = np.random.SeedSequence([int(seed), int(epoch), int(index), _PIXEL_STREAM])
-    return jax.random.PRNGKey(int(state.generate_state(1)[0]))
 
 
 def _uniform(key, lo_hi, shape=()):

@@ -24,15 +24,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gijax.data.augment import (AugmentConfig, augment_masks, augment_sample, augmentation_key,
-                                augmentation_rng)
+from gijax.data.augment import AugmentConfig, augment_masks, augment_sample
 from gijax.evaluate.labels import usable_label
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import Rig, is_homogeneous
+from gijax.random_streams import device_key, host_rng
 from gijax.sweep.surrogate import (resample_surrogates, surrogate_image, surrogate_images,
                                    surrogate_maps)
 
-_SHUFFLE_STREAM = 0x73687566
 _surrogate_one = jax.jit(surrogate_image, static_argnames=("pano",))
 _augment = jax.jit(augment_sample, static_argnames=("config",))
 # Settings a saved state is only valid for.
@@ -44,8 +43,7 @@ def epoch_order(num_samples: int, seed: int, epoch: int, shuffle: bool = True) -
     """The global sample order of one epoch (the same on every process)."""
     if not shuffle:
         return np.arange(num_samples)
-    rng = np.random.default_rng([int(seed), int(epoch), _SHUFFLE_STREAM])
-    return rng.permutation(num_samples)
+    return host_rng(seed, "shuffle", epoch).permutation(num_samples)
 
 
 def shard_order(order: np.ndarray, process_index: int, process_count: int) -> np.ndarray:
@@ -196,7 +194,7 @@ class Loader:
                                                                     self.rig.masks)]
         if self.mask_augmentation:
             images, masks, _ = augment_masks(images, masks,
-                                             augmentation_rng(self.seed, epoch, int(index)))
+                                             host_rng(self.seed, "erase", epoch, int(index)))
         if self.augment is not None:
             images, masks = self._augment_pixels(images, masks, int(index), epoch)
         if self._grids is not None:
@@ -215,7 +213,7 @@ class Loader:
                 "distance": distance, "valid": usable_label(distance), "index": int(index)}
 
     def _augment_pixels(self, images, masks, index: int, epoch: int):
-        key = augmentation_key(self.seed, epoch, index)
+        key = device_key(self.seed, "pixels", epoch, index)
         centres = np.array([[float(c.cx), float(c.cy)] for c in self.rig.cameras], np.float32)
         if len({m.shape for m in masks}) == 1:
             out_i, out_m = _augment(key, np.stack(images), np.stack(masks), self.augment, centres)

@@ -16,6 +16,7 @@ import jax
 import numpy as np
 
 from gijax.data.loader import epoch_order, shard_order
+from gijax.random_streams import host_rng
 from gijax.train.step import BATCH_KEYS, EXTRA_KEYS
 
 
@@ -175,8 +176,7 @@ class MixedStream:
         self.streams = [f(s) for f, s in zip(factories, streams_state)]
 
     def choice(self, step: int) -> int:
-        rng = np.random.default_rng([self.seed, 0x6D6978, step])
-        return int(rng.choice(len(self.p), p=self.p))
+        return int(host_rng(self.seed, "mixture", step).choice(len(self.p), p=self.p))
 
     def state(self) -> dict:
         return {"step": self.step, "streams": [s.state() for s in self.streams]}

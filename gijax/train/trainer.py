@@ -29,6 +29,7 @@ from gijax.geometry.rig import Rig
 from gijax.io.lock import FolderLock
 from gijax.io.paths import write_text_atomic
 from gijax.model import model_rig
+from gijax.random_streams import device_key
 from gijax.store.checkpoints import CheckpointStore
 from gijax.store.configs import model_config_to_dict
 from gijax.train import run_folder as R
@@ -336,7 +337,7 @@ class Trainer:
             error = CalibrationError(rotation_deg=self.config.calibration_error_deg, focal=0.0,
                                      centre=0.0)
             self._perturb = jax.jit(lambda key, r: perturb_rig(key, r, error))
-        key = jax.random.fold_in(jax.random.PRNGKey(self.config.seed), 0x6361 + step)
+        key = device_key(self.config.seed, "calibration", step)
         return self._perturb(key, rig)
 
     def close(self) -> None:
