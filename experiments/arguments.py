@@ -1,4 +1,5 @@
-"""The command line shared by the table scripts (``same_layout.py``, ``new_layout.py``)."""
+"""The command line shared by the experiment scripts: ``--scale``, ``--work``, ``--out``,
+``--results`` (and ``--seed`` for the scripts that train from a seed)."""
 
 from __future__ import annotations
 
@@ -10,30 +11,41 @@ from experiments.scales import SCALES
 EXPERIMENTS = Path(__file__).resolve().parent
 
 
-def parse_script_args(doc: str, name: str, argv: list):
-    """The command line shared by the table scripts -> (args, scale, work, out, results)."""
+def script_parser(doc: str):
+    """A script's parser: the first line of its docstring as the description, the rest as the
+    epilog of ``--help``."""
     import argparse
 
-    parser = argparse.ArgumentParser(description=doc.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(doc.splitlines()[2:]))
+    return argparse.ArgumentParser(description=doc.splitlines()[0],
+                                   formatter_class=argparse.RawDescriptionHelpFormatter,
+                                   epilog="\n".join(doc.splitlines()[2:]))
+
+
+def parse_script_args(doc: str, name: str, argv: list):
+    """The command line shared by the table scripts -> (args, scale, work, out, results)."""
+    parser = script_parser(doc)
     add_common_arguments(parser, name)
     args = parser.parse_args(argv)
     return (args, SCALES[args.scale], *resolve_paths(args, name))
 
 
-def add_common_arguments(parser, default_name: str) -> None:
-    parser.add_argument("--scale", choices=list(SCALES), default="smoke",
-                        help="smoke: pipeline check (about a minute); cpu: the reported figures "
-                             "(hours on 2 cores, resumable); paper: the paper's sizes (GPUs)")
-    parser.add_argument("--work", default=None,
-                        help="shared work folder for data, runs and cached evaluations "
-                             "(default experiments/out/work_<scale>)")
+def add_common_arguments(parser, default_name: str, scales=SCALES,
+                         scale_help: str = "smoke: pipeline check (about a minute); cpu: the "
+                                           "reported figures (hours on 2 cores, resumable); "
+                                           "paper: the paper's sizes (GPUs)",
+                         work_help: str = "shared work folder for data, runs and cached "
+                                          "evaluations (default experiments/out/work_<scale>)",
+                         seed: bool = True) -> None:
+    """``--scale`` (one of ``scales``), ``--work``, ``--out``, ``--results`` and, with
+    ``seed``, ``--seed``."""
+    parser.add_argument("--scale", choices=list(scales), default="smoke", help=scale_help)
+    parser.add_argument("--work", default=None, help=work_help)
     parser.add_argument("--out", default=None,
                         help=f"output stem (default experiments/results/{default_name}_cpu for "
                              f"--scale cpu, else experiments/out/{default_name}_<scale>)")
-    parser.add_argument("--seed", type=int, default=0, help="training seed (initialisation "
-                                                            "and data order)")
+    if seed:
+        parser.add_argument("--seed", type=int, default=0, help="training seed (initialisation "
+                                                                "and data order)")
     parser.add_argument("--results", default=None,
                         help="Markdown file whose section to update (default "
                              "experiments/RESULTS.md for --scale cpu, none otherwise); "

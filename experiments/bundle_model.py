@@ -54,7 +54,7 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.arguments import add_common_arguments, resolve_paths  # noqa: E402
+from experiments.arguments import add_common_arguments, resolve_paths, script_parser  # noqa: E402
 from experiments.evaluation import (cached_evaluation, net_predictor, rtss_predictor,  # noqa: E402
                                     weights_id)
 from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
@@ -529,12 +529,8 @@ def table_markdown(rows: list) -> str:
 
 
 def main(argv=None) -> int:
-    import argparse
-
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(__doc__.splitlines()[2:]))
+    parser = script_parser(__doc__)
     add_common_arguments(parser, NAME)
     parser.add_argument("--previous", default=None,
                         help="the bundle evaluated beside the new one (default: the packaged "

@@ -44,7 +44,8 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments import bundle_model as BM  # noqa: E402
-from experiments.arguments import EXPERIMENTS, add_common_arguments, resolve_paths  # noqa: E402
+from experiments.arguments import (EXPERIMENTS, add_common_arguments,  # noqa: E402
+                                   resolve_paths, script_parser)
 from experiments.provenance import provenance_markdown, provenance_record, revision  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, read_json, save_png,  # noqa: E402
                                    save_table, write_json)
@@ -271,13 +272,9 @@ def evaluate_finished(work: Path, scale: Scale, records: dict) -> dict:
 
 
 def main(argv=None) -> int:
-    import argparse
-
     started = time.time()
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(__doc__.splitlines()[2:]))
+    parser = script_parser(__doc__)
     add_common_arguments(parser, NAME)
     parser.add_argument("--report-only", action="store_true",
                         help="train nothing: report the designs as far as their runs (or "

@@ -1,4 +1,4 @@
-"""The README's example rig: the bundled model fine-tuned on renders of it, against classical stereo.
+"""The README's example rig: the bundled model fine-tuned on its renders, against classical stereo.
 
 ``docs/examples/four_fisheye_ring`` is a basalt calibration of four ~240-degree Double Sphere
 fisheyes looking outward around a 7 cm ring, with masks hiding the mounting pole (the README's
@@ -31,7 +31,6 @@ into ``experiments/results/example_rig_cpu*`` and a section of ``experiments/RES
 
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 import sys
@@ -44,7 +43,8 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.arguments import resolve_paths  # noqa: E402
+from experiments.arguments import (add_common_arguments, resolve_paths,  # noqa: E402
+                                   script_parser)
 from experiments.claims import paired_difference, paired_text  # noqa: E402
 from experiments.evaluation import weights_id  # noqa: E402
 from experiments.provenance import command_line, revision  # noqa: E402
@@ -238,22 +238,14 @@ def curve(run: Path, rows: dict, path: Path, title: str) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(__doc__.splitlines()[2:]))
-    parser.add_argument("--scale", choices=list(SCALES), default="smoke",
-                        help="smoke: pipeline check (minutes); cpu: the reported figures (about "
-                             "75 minutes on 2 cores; resumable, and a rerun reuses the data, the "
-                             "run and the evaluations)")
-    parser.add_argument("--work", default=None,
-                        help="work folder for the rig file, data, the run and the evaluations "
-                             "(default experiments/out/work_<scale>/example_rig)")
-    parser.add_argument("--out", default=None,
-                        help="output stem (default experiments/results/example_rig_cpu for "
-                             "--scale cpu, else experiments/out/example_rig_<scale>)")
-    parser.add_argument("--results", default=None,
-                        help="Markdown file whose section to update (default "
-                             "experiments/RESULTS.md for --scale cpu); 'none' disables")
+    parser = script_parser(__doc__)
+    add_common_arguments(parser, NAME, SCALES, seed=False,
+                         scale_help="smoke: pipeline check (minutes); cpu: the reported figures "
+                                    "(about 75 minutes on 2 cores; resumable, and a rerun reuses "
+                                    "the data, the run and the evaluations)",
+                         work_help="work folder for the rig file, data, the run and the "
+                                   "evaluations (default experiments/out/work_<scale>/"
+                                   "example_rig)")
     args = parser.parse_args(argv)
     cfg = SCALES[args.scale]
     work, out, results = resolve_paths(args, NAME)

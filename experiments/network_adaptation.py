@@ -29,7 +29,6 @@ are reused (a run resumes where it stopped; an evaluation is keyed by the weight
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -39,7 +38,8 @@ import numpy as np
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from experiments.arguments import resolve_paths  # noqa: E402
+from experiments.arguments import (add_common_arguments, resolve_paths,  # noqa: E402
+                                   script_parser)
 from experiments.claims import paired_difference, paired_text  # noqa: E402
 from experiments.evaluation import (cached_evaluation, net_predictor, rtss_predictor,  # noqa: E402
                                     weights_id)
@@ -207,22 +207,13 @@ def comparisons(rows: dict) -> list:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n".join(__doc__.splitlines()[2:]))
-    parser.add_argument("--scale", choices=list(SCALES), default="smoke",
-                        help="smoke: pipeline check (a few minutes); cpu: the reported figures "
-                             "(82 minutes on a busy 2-core machine; resumable, and a rerun reuses "
-                             "the data, runs and evaluations)")
-    parser.add_argument("--work", default=None,
-                        help="work folder for data, adaptation runs and cached evaluations "
-                             "(default experiments/out/work_<scale>)")
-    parser.add_argument("--out", default=None,
-                        help="output stem (default experiments/results/network_adaptation_cpu "
-                             "for --scale cpu, else experiments/out/network_adaptation_<scale>)")
-    parser.add_argument("--results", default=None,
-                        help="Markdown file whose section to update (default "
-                             "experiments/RESULTS.md for --scale cpu); 'none' disables")
+    parser = script_parser(__doc__)
+    add_common_arguments(parser, NAME, SCALES, seed=False,
+                         scale_help="smoke: pipeline check (a few minutes); cpu: the reported "
+                                    "figures (82 minutes on a busy 2-core machine; resumable, and "
+                                    "a rerun reuses the data, runs and evaluations)",
+                         work_help="work folder for data, adaptation runs and cached evaluations "
+                                   "(default experiments/out/work_<scale>)")
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS),
                         help="which adaptations to run (default both)")
     args = parser.parse_args(argv)
