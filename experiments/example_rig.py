@@ -25,7 +25,7 @@ recorded verbatim; each is skipped when its output is already complete (renders 
 resume where they stopped; an evaluation is keyed by the weights' hash).
 
 Writes ``<out>.md``, ``<out>.json``, ``<out>_maps.png`` (the first held-out scene: truth, RS-E32,
-before, after) and ``<out>_curve.png`` (fine-tuning loss and validation MAE); for ``--scale cpu``
+before, after) and ``<out>_curve.png`` (fine-tuning loss and validation MAE, as the bundle's learning curve); for ``--scale cpu``
 into ``experiments/results/example_rig_cpu*`` and a section of ``experiments/RESULTS.md``.
 """
 
@@ -45,11 +45,12 @@ if __package__ in (None, ""):
 
 from experiments.arguments import (add_common_arguments, resolve_paths,  # noqa: E402
                                    script_parser)
+from experiments.bundle_model import learning_curve  # noqa: E402
 from experiments.claims import paired_difference, paired_text  # noqa: E402
 from experiments.evaluation import weights_id  # noqa: E402
 from experiments.provenance import command_line, revision  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, read_json, save_figure,  # noqa: E402
-                                   save_png, write_json, write_text)
+                                   write_json, write_text)
 from experiments.workfolder import gijax_command, metrics_records  # noqa: E402
 from gijax.bench.machine import machine_info  # noqa: E402
 from gijax.bench.report import markdown_grid  # noqa: E402
@@ -207,36 +208,6 @@ def comparisons(rows: dict) -> list:
     return out
 
 
-def curve(run: Path, rows: dict, path: Path, title: str) -> None:
-    """Fine-tuning loss per step (running mean) and validation MAE (gijax metric set, as the
-    trainer logs it)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    recs = metrics_records(run)
-    steps = np.array([r["step"] for r in recs if "loss" in r])
-    loss = np.array([r["loss"] for r in recs if "loss" in r])
-    vals = [r for r in recs if r.get("split") == "val"]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.2))
-    if len(loss):
-        k = min(25, len(loss))
-        a.plot(steps[k - 1:], np.convolve(loss, np.ones(k) / k, "valid"))
-    a.set_xlabel("step")
-    a.set_ylabel("training loss (running mean of 25)")
-    if vals:
-        b.plot([v["step"] for v in vals], [v["mae"] for v in vals], "o-",
-               label="fine-tuned, validation scenes")
-    b.set_xlabel("step")
-    b.set_ylabel("validation MAE, gijax metric (1/m)")
-    b.legend(fontsize=7)
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    save_png(fig, path, dpi=100)
-    plt.close(fig)
-
-
 def main(argv=None) -> int:
     parser = script_parser(__doc__)
     add_common_arguments(parser, NAME, SCALES, seed=False,
@@ -283,8 +254,8 @@ def main(argv=None) -> int:
                 f"README example rig (7 cm ring, 4 fisheyes), first held-out scene "
                 f"({args.scale} scale)")
     curve_png = out.with_name(out.name + "_curve.png")
-    curve(run, rows, curve_png, f"fine-tuning {MODEL} on renders of the README example rig "
-                                f"({args.scale} scale)")
+    learning_curve(run, curve_png, f"fine-tuning {MODEL} on renders of the README example rig "
+                                   f"({args.scale} scale)")
     target = rows["after"]["mae"] <= rows[BASELINE]["mae"]
     in_budget = budget <= BUDGET_S
     meta = {"command": command_line(f"{NAME}.py", argv if argv is not None else sys.argv[1:]),
