@@ -1,9 +1,10 @@
 """Checked reading of rig-file fields, shared by every format (gijax YAML, Kalibr, basalt).
 
 Every malformed value raises one ``ValueError`` naming the file, the camera, the field and what
-was expected (:class:`Where` builds :func:`gijax.checks.bad_document_field`'s message). Calibration files print about 8-10 digits, so
-rotations are checked against :data:`ORTHONORMAL_TOL`, and all arithmetic here is float64: the
-rig is rounded to float32 once, at the end.
+was expected (:class:`Where` builds :func:`gijax.checks.bad_document_field`'s message).
+Calibration files print about 8-10 digits, so rotations are checked against
+:data:`ORTHONORMAL_TOL`, and all arithmetic here is float64: the rig is rounded to float32 once,
+at the end.
 """
 
 from __future__ import annotations
