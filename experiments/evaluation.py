@@ -1,5 +1,7 @@
-"""Evaluation of a method on a test dataset: the compiled predictors (a trained network, the
-classical RTSS baseline), the metrics over every sample, and the cache under ``evals/``.
+"""Evaluation of a method on a test dataset: the library's predictors of raw images
+(:class:`gijax.predict.LearnedImagePredictor`, :class:`gijax.predict.RtssBatchPredictor`)
+called one sample at a time with their peak memory, the metrics over every sample
+(:func:`gijax.evaluate.loop.evaluate_predictions`), and the cache under ``evals/``.
 
 Metrics (:mod:`gijax.evaluate.metrics`, inverse distance in 1/m): the columns compared with the
 paper's figures (``mae``, ``rmse``, ``ssim``, ``bad_0.1``, ``bad_0.4``) use the paper's
@@ -53,21 +55,6 @@ def xla_peak_mb(compiled) -> Optional[float]:
     return mem.get("reported_peak_bytes", mem["peak_bytes"]) / MIB
 
 
-_COMPILED: dict = {}
-
-
-def compile_once(tag, args: tuple, build: Callable):
-    """A compiled executable per (tag, argument structure, shapes and dtypes), built once per
-    process: another rig with the same camera count, or another candidate list, reuses it."""
-    import jax
-
-    leaves, treedef = jax.tree.flatten(args)
-    key = (tag, treedef, tuple((tuple(x.shape), str(x.dtype)) for x in leaves))
-    if key not in _COMPILED:
-        _COMPILED[key] = build()
-    return _COMPILED[key]
-
-
 _MODELS: dict = {}
 
 
@@ -113,83 +100,55 @@ def weights_id(path: Path) -> str:
     return h.hexdigest()[:12]
 
 
+def _one_sample(batch_predictor, example: dict) -> Predictor:
+    """A library batch predictor (:mod:`gijax.predict`) called one sample at a time, with the
+    XLA peak memory of its compiled call for ``example``'s shapes."""
+    import jax
+
+    def fn(images, masks):
+        pred = batch_predictor({"images": np.asarray(images)[None],
+                                "masks": np.asarray(masks, np.float32)[None]})
+        inv, valid = jax.block_until_ready((pred.inv_distance[0], pred.valid[0]))
+        return inv, valid
+
+    peak = xla_peak_mb(batch_predictor.lower(example).compile())
+    return Predictor(fn, batch_predictor.candidates, peak)
+
+
+def _example(rig, dtype) -> dict:
+    cam = rig.cameras[0]
+    n = rig.num_cameras
+    return {"images": np.zeros((1, n, cam.height, cam.width, 3), dtype),
+            "masks": np.ones((1, n, cam.height, cam.width), np.float32)}
+
+
 def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
     """A trained network (a run folder's best validated checkpoint, or a bundle) on raw
-    fisheye images of ``rig``.
+    fisheye images of ``rig`` (:class:`gijax.predict.LearnedImagePredictor`).
 
     The timed call includes the resampling to surrogate images, as the classical baseline's
     includes its matching views. ``candidates_spec`` is ``gijax eval``'s ``--candidates``.
     """
-    import jax
-    import jax.numpy as jnp
-    from flax import nnx
-
     from gijax.candidates.spec import model_candidates
-    from gijax.model import model_grids, model_rig
-    from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
-    from gijax.sweep.surrogate import as_float_image
+    from gijax.predict import LearnedImagePredictor
 
     model, mc, train_cand = loaded_model(run_dir)
-    if mc.cost_volume == "concat" and rig.num_cameras != mc.num_cameras:
-        raise ValueError(f"{mc.name} concatenates exactly {mc.num_cameras} cameras; the rig has "
-                         f"{rig.num_cameras}")
     cand, _ = model_candidates(candidates_spec, rig, mc, train=train_cand)
-    graphdef, state = nnx.split(model)
-    mrig = model_rig(rig)
-
-    def forward(state, images, masks, rig, cand):
-        grids = model_grids(mc, rig, cand)
-        sur, sur_masks = fisheye_surrogates(surrogate_resampling(rig, mc.surrogate_hw),
-                                            as_float_image(images)[None], masks[None])
-        out = nnx.merge(graphdef, state)(sur, sur_masks, grids)
-        return out["inv_distance"][0]
-
-    cam = rig.cameras[0]
-    n = rig.num_cameras
-    images = jnp.zeros((n, cam.height, cam.width, 3), jnp.uint8)
-    masks = jnp.ones((n, cam.height, cam.width), jnp.float32)
-    jcand = jnp.asarray(cand, jnp.float32)
-    args = (state, images, masks, mrig, jcand)
-    compiled = compile_once(("net", graphdef, mc), args,
-                            lambda: jax.jit(forward).lower(*args).compile())
-
-    def fn(images, masks):
-        inv = compiled(state, jnp.asarray(images), jnp.asarray(masks, jnp.float32), mrig, jcand)
-        inv = jax.block_until_ready(inv)
-        return inv, jnp.ones(inv.shape, bool)
-
-    return Predictor(fn, cand, xla_peak_mb(compiled))
+    return _one_sample(LearnedImagePredictor(model, rig, cand), _example(rig, np.uint8))
 
 
 def rtss_predictor(rig, preset: str, pano_hw: tuple) -> Predictor:
-    """The classical RTSS preset on raw fisheye images (EV, or GI computed for ``rig``)."""
-    import jax
-    import jax.numpy as jnp
-
-    from gijax.baseline.rtss import get_rtss_preset, preset_candidates, sphere_sweep
+    """The classical RTSS preset on raw fisheye images (EV, or GI computed for ``rig``;
+    :class:`gijax.predict.RtssBatchPredictor`)."""
+    from gijax.baseline.rtss import get_rtss_preset, preset_candidates
     from gijax.geometry.panorama import Panorama
+    from gijax.predict import RtssBatchPredictor
 
     config = get_rtss_preset(preset)
     config = config.replace(match_size=min(config.match_size, min(c.width for c in rig.cameras)))
     cand = np.asarray(preset_candidates(rig, config), np.float64)
-    pano = Panorama.hemisphere(*pano_hw)
-    cam = rig.cameras[0]
-    n = rig.num_cameras
-    images = jnp.zeros((n, cam.height, cam.width, 3), jnp.float32)
-    masks = jnp.ones((n, cam.height, cam.width), jnp.float32)
-    jcand = jnp.asarray(cand, jnp.float32)
-    # The same compiled function rtss_predict runs, lowered here to read its memory analysis.
-    compiled = compile_once(("rtss", config, pano), (rig, images, masks, jcand),
-                            lambda: sphere_sweep.lower(rig, images, masks, jcand, pano=pano,
-                                                config=config).compile())
-
-    def fn(images, masks):
-        out = compiled(rig, jnp.asarray(images, jnp.float32) / 255.0,
-                       jnp.asarray(masks, jnp.float32), jcand)
-        out = jax.block_until_ready(out)
-        return out["inv_distance"], out["valid"]
-
-    return Predictor(fn, cand, xla_peak_mb(compiled))
+    predictor = RtssBatchPredictor(rig, cand, Panorama.hemisphere(*pano_hw), config)
+    return _one_sample(predictor, _example(rig, np.float32))
 
 
 def evaluate(reader, predictor: Predictor) -> tuple[dict, np.ndarray]:

@@ -8,7 +8,9 @@ surrogate images with the :class:`gijax.sweep.grids.SweepGrids` of the rig and c
 config into the sizes the sweep layer takes. Raw fisheye images become surrogate images first,
 by :func:`gijax.sweep.grids.fisheye_surrogates` with the
 :func:`gijax.sweep.grids.surrogate_resampling` maps at ``config.surrogate_hw`` (the data
-loader does the same per sample on its own threads). The network's stages are its methods
+loader does the same per sample on its own threads); :func:`on_fisheye_images` is that step
+and the call together, for the paths that start from raw images (predict, the experiments'
+timed evaluations, the ONNX export). The network's stages are its methods
 (:meth:`OmniStereoNet.extract_features`, :meth:`~OmniStereoNet.sweep`,
 :meth:`~OmniStereoNet.matching`, :meth:`~OmniStereoNet.build_cost_volume`, :meth:`~OmniStereoNet.unet_logits`,
 :meth:`~OmniStereoNet.regress`, :meth:`~OmniStereoNet.refined`), which ``__call__`` runs in
@@ -52,8 +54,8 @@ from gijax.geometry.rig import Rig
 from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_cost_volume,
                       make_unet, param_count, regress)
 from gijax.nn.refine import GuidedRefinement, colour_guide
-from gijax.sweep.grids import (SweepGrids, cost_panorama, match_grey, sweep_colours,
-                               sweep_features, sweep_grids)
+from gijax.sweep.grids import (SurrogateMaps, SweepGrids, cost_panorama, fisheye_surrogates,
+                               match_grey, sweep_colours, sweep_features, sweep_grids)
 from gijax.sweep.matching import cell_zncc_batch_last
 
 Array = jax.Array
@@ -260,6 +262,16 @@ class OmniStereoNet(nnx.Module):
                           (1.0 / cand[-1], 1.0 / cand[0]))
         return {"inv_distance": inv, "distance": 1.0 / inv,
                 "inv_distance_coarse": out["inv_distance"]}
+
+
+def on_fisheye_images(model: OmniStereoNet, images: Array, masks: Array, maps: SurrogateMaps,
+                      grids: SweepGrids) -> dict:
+    """The network on raw fisheye images (B, N, h, w, 3) float in [0, 1] and their masks
+    (B, N, h, w): their surrogate images by ``maps``
+    (:func:`gijax.sweep.grids.surrogate_resampling` of the rig at ``config.surrogate_hw``),
+    then ``model(surrogates, masks, grids)``. Traceable; returns the network's outputs."""
+    surrogates, sur_masks = fisheye_surrogates(maps, images, masks)
+    return model(surrogates, sur_masks, grids)
 
 
 def create_model(name_or_config: str | ModelConfig, seed: int = 0) -> OmniStereoNet:

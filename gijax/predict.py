@@ -5,16 +5,17 @@ one sample share one call, ``predict(rig, images, masks=None, log=None)``: the l
 (:class:`LearnedPredictor`, around :func:`predict`), the classical baseline
 (:class:`RtssPredictor`) and an exported ONNX file
 (:class:`gijax.export.ort_predict.OnnxPredictor`). For evaluation over a dataset,
-:func:`learned_batch_predictor` and :func:`rtss_batch_predictor` predict whole batches for
-:func:`gijax.evaluate.loop.evaluate_predictions`, whose label batches for the baseline come
-from :func:`label_batches`.
+:func:`learned_batch_predictor` (surrogate images, as the data loader makes them),
+:class:`LearnedImagePredictor` and :class:`RtssBatchPredictor` (raw fisheye images, as
+:func:`sample_batches` reads them) predict whole batches for
+:func:`gijax.evaluate.loop.evaluate_predictions`.
 
 :func:`predict` has no side effects but is not traceable: it is the eager edge for one sample
 (numpy in, numpy out; inputs checked with errors that name them). Images of another size are
 handled by :func:`fit_images`, the one size policy of every method: resized when the aspect
 ratio is the rig's, refused otherwise. The traceable core is the network call on surrogate
-images: raw images resampled to the model's surrogate images
-(:func:`gijax.sweep.grids.fisheye_surrogates`), then ``model(surrogates, masks, grids)`` with
+images: raw images resampled to the model's surrogate images, then ``model(surrogates, masks,
+grids)`` (:func:`gijax.model.on_fisheye_images`) with
 the sweep grids of :func:`gijax.model.model_grids`, in eval mode (BatchNorm running
 statistics).
 :func:`write_prediction` writes the results: the distance panorama as float32 ``.npy``,
@@ -53,22 +54,40 @@ from gijax.data.images import fit_images
 from gijax.geometry.rig import Rig, project_rig_points
 from gijax.io.replace import FolderKind
 from gijax.model import (OmniStereoNet, check_model_candidates, coverage_note, model_grids,
-                         model_panorama, model_rig)
+                         model_panorama, model_rig, on_fisheye_images)
 from gijax.nn.presets import ModelConfig
 from gijax.sampling import bilinear_sample
-from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
+from gijax.sweep.grids import surrogate_resampling
 from gijax.sweep.surrogate import as_float_image, check_images
 
 Array = jax.Array
 
 
-@functools.partial(nnx.jit, static_argnames=("pano",))
-def _forward(model: OmniStereoNet, images, masks, rig, candidates, pano: Panorama):
+# Every output of the network, as predict() returns them.
+_MAPS = ("inv_distance", "distance", "prob", "entropy", "valid")
+
+
+@functools.partial(jax.jit, static_argnames=("graphdef", "pano", "outputs"))
+def _network_on_images(graphdef, state, images, masks, rig, candidates, pano: Panorama,
+                       outputs: tuple) -> dict:
+    """The network (``graphdef`` with ``state``, in the mode the state holds) on raw fisheye
+    images (B, N, h, w, 3), uint8 or float in [0, 1], at the size of ``rig``: the ``outputs``
+    named, over ``pano``. The one compiled program of the learned model's predictions (one
+    sample, or batches in :class:`LearnedImagePredictor`)."""
+    model = nnx.merge(graphdef, state)
     cfg = model.config
-    grids = model_grids(cfg, rig, candidates, pano)
-    surrogates, sur_masks = fisheye_surrogates(surrogate_resampling(rig, cfg.surrogate_hw),
-                                               images, masks)
-    return model(surrogates, sur_masks, grids)
+    out = on_fisheye_images(model, as_float_image(images), masks,
+                            surrogate_resampling(rig, cfg.surrogate_hw),
+                            model_grids(cfg, rig, candidates, pano))
+    return {k: out[k] for k in outputs}
+
+
+def _eval_split(model: OmniStereoNet):
+    """(graphdef, state) of an eval-mode view of ``model`` (the model's own mode is kept)."""
+    graphdef, state = nnx.split(model)
+    view = nnx.merge(graphdef, state)
+    view.eval()
+    return nnx.split(view)
 
 
 @functools.partial(jax.jit, static_argnames=("pano",))
@@ -209,14 +228,12 @@ def predict(model: OmniStereoNet, rig: Rig, images, masks, candidates, log=None,
     if masks is None:
         masks = np.stack([np.ones((c.height, c.width), np.float32) if m is None else np.asarray(m)
                           for c, m in zip(run_rig.cameras, run_rig.masks)])
-    graphdef, state = nnx.split(model)
-    view = nnx.merge(graphdef, state)
-    view.eval()
+    graphdef, state = _eval_split(model)
     cand = jnp.asarray(candidates, jnp.float32)
-    out = _forward(view, images[None], jnp.asarray(masks, jnp.float32)[None], run_rig, cand,
-                   pano)
-    maps = {k: np.asarray(out[k][0]) for k in ("inv_distance", "distance", "prob", "entropy",
-                                                "valid")}
+    out = _network_on_images(graphdef, state, images[None],
+                             jnp.asarray(masks, jnp.float32)[None], model_rig(run_rig), cand,
+                             pano, _MAPS)
+    maps = {k: np.asarray(out[k][0]) for k in _MAPS}
     rgb, rgb_valid = (colour_panorama(full_rig, full_images, full_masks, maps["distance"],
                                       maps["valid"], pano) if colours else (None, None))
     return Prediction(**maps,
@@ -301,37 +318,85 @@ def learned_batch_predictor(model: OmniStereoNet, rig: Rig, candidates, pano: Pa
     return predict_batch
 
 
-def label_batches(reader, batch_size: int):
-    """The labels of a dataset reader in order, in batches: ``index`` (B,), ``distance``
-    (B, H, W) float32 metres and ``valid`` (B, H, W) (usable labels). For predictors that read
-    each sample's raw images themselves (:func:`rtss_batch_predictor`)."""
+class LearnedImagePredictor:
+    """``batch -> Prediction`` of a learned model on batches of raw fisheye images, the
+    resampling to surrogate images inside the one compiled call (so a timed call costs what a
+    deployed one does): ``batch['images']`` (B, N, h, w, 3) uint8 or float in [0, 1] at the
+    size of ``rig`` (the model's image size, :func:`model_size`), ``batch['masks']``
+    (B, N, h, w). Like :func:`learned_batch_predictor` it scores every pixel (``valid`` all
+    True). :meth:`lower` gives the compiled program's lowering for a batch (XLA's memory and
+    cost analysis; compiling it again reuses the program the calls run). It runs the program
+    :func:`predict` runs for a sample (the same outputs asked for), so the two agree to the
+    bit on the same inputs."""
+
+    def __init__(self, model: OmniStereoNet, rig: Rig, candidates, pano: Panorama | None = None):
+        if model.config.cost_volume == "concat" and rig.num_cameras != model.config.num_cameras:
+            raise ValueError(f"model {model.config.name!r} concatenates exactly "
+                             f"{model.config.num_cameras} cameras; the rig has {rig.num_cameras}")
+        self.graphdef, self.state = _eval_split(model)
+        self.rig = model_rig(rig)
+        self.candidates = np.asarray(candidates, np.float64)
+        self.pano = model_panorama(model.config) if pano is None else pano
+
+    def _args(self, batch: dict) -> tuple:
+        # Converted to float as predict() converts them, so both run one program.
+        return (self.graphdef, self.state, as_float_image(batch["images"]),
+                jnp.asarray(batch["masks"], jnp.float32), self.rig,
+                jnp.asarray(self.candidates, jnp.float32), self.pano, _MAPS)
+
+    def __call__(self, batch: dict) -> Prediction:
+        inv = _network_on_images(*self._args(batch))["inv_distance"]
+        return Prediction(inv_distance=inv, valid=jnp.ones(inv.shape, bool))
+
+    def lower(self, batch: dict):
+        return _network_on_images.lower(*self._args(batch))
+
+
+def sample_batches(reader, batch_size: int):
+    """A dataset reader's samples in order, in batches, for predictors of raw fisheye images
+    (:class:`LearnedImagePredictor`, :class:`RtssBatchPredictor`): ``index`` (B,),
+    ``images`` (B, N, h, w, 3) uint8, ``masks`` (B, N, h, w) float32, ``distance``
+    (B, H, W) float32 metres and ``valid`` (B, H, W) (usable labels)."""
     for start in range(0, len(reader), batch_size):
         indices = np.arange(start, min(start + batch_size, len(reader)))
-        dist = np.stack([np.asarray(reader[int(i)]["pano_distance"], np.float32)
-                         for i in indices])
-        yield {"index": indices, "distance": dist, "valid": usable_label(dist)}
+        samples = [reader[int(i)] for i in indices]
+        dist = np.stack([np.asarray(s["pano_distance"], np.float32) for s in samples])
+        yield {"index": indices, "images": np.stack([s["images"] for s in samples]),
+               "masks": np.stack([np.asarray(s["masks"], np.float32) for s in samples]),
+               "distance": dist, "valid": usable_label(dist)}
 
 
-def rtss_batch_predictor(reader, rig: Rig, candidates, pano: Panorama, config):
-    """``batch -> Prediction`` of the classical baseline (an RTSS configuration) on the raw
-    fisheye images of each sample of ``reader`` named by ``batch['index']``; ``rig`` at the
-    images' size."""
-    from gijax.baseline.rtss import rtss_predict
+class RtssBatchPredictor:
+    """``batch -> Prediction`` of the classical baseline (an RTSS configuration) on batches of
+    raw fisheye images (``images`` (B, N, h, w, 3) uint8 or float in [0, 1], ``masks``
+    (B, N, h, w), as :func:`sample_batches` yields them), one sample per compiled call;
+    ``rig`` at the images' size. :meth:`lower` gives the lowering of one sample's call."""
 
-    cand = jnp.asarray(candidates, jnp.float32)
+    def __init__(self, rig: Rig, candidates, pano: Panorama, config):
+        self.rig = rig
+        self.candidates = np.asarray(candidates, np.float64)
+        self.pano = pano
+        self.config = config
 
-    def predict_batch(batch: dict) -> Prediction:
+    def _args(self, images, masks) -> tuple:
+        return (self.rig, as_float_image(images), jnp.asarray(masks, jnp.float32),
+                jnp.asarray(self.candidates, jnp.float32))
+
+    def __call__(self, batch: dict) -> Prediction:
+        from gijax.baseline.rtss import rtss_predict
+
         invs, valids = [], []
-        for i in batch["index"]:
-            s = reader[int(i)]
-            images = np.asarray(s["images"], np.float32) / 255.0
-            out = rtss_predict(rig, images, np.asarray(s["masks"], np.float32), cand, pano,
-                               config)
+        for images, masks in zip(batch["images"], batch["masks"]):
+            out = rtss_predict(*self._args(images, masks), self.pano, self.config)
             invs.append(out["inv_distance"])
             valids.append(out["valid"])
         return Prediction(inv_distance=jnp.stack(invs), valid=jnp.stack(valids))
 
-    return predict_batch
+    def lower(self, batch: dict):
+        from gijax.baseline.rtss import sphere_sweep
+
+        return sphere_sweep.lower(*self._args(batch["images"][0], batch["masks"][0]),
+                                  pano=self.pano, config=self.config)
 
 
 INVALID = ("invalid pixels (valid = False): NaN in distance.npy, 0 in valid.png and False in "

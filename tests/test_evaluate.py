@@ -1,6 +1,7 @@
 """gijax.evaluate: the usable-label rule, the evaluation loop against hand-computed metrics,
 and the learned model and the classical baseline scored through the same loop."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -106,7 +107,9 @@ def test_learned_and_rtss_through_the_same_loop_on_a_rendered_sample():
         kept = {}
 
         def run(_batch):
-            pred = predictor.predict(rig, sample["images"], sample["masks"])
+            # The calibrated rig, as a user calls it: the images are read at their own size.
+            pred = predictor.predict(builtin_rig("paper-train"), sample["images"],
+                                     sample["masks"])
             kept["pred"] = pred
             return pred.replace(inv_distance=pred.inv_distance[None], valid=pred.valid[None])
 
@@ -130,3 +133,54 @@ def test_learned_and_rtss_through_the_same_loop_on_a_rendered_sample():
             "rgb_valid", "candidates", "panorama"} == set(preds["learned"])
     assert {"inv_distance", "distance", "valid", "candidates", "panorama"} == set(preds["rtss"])
     assert preds["rtss"].get("entropy") is None
+
+
+@pytest.mark.usefixtures("quick_compiles")
+def test_raw_image_batch_predictors_agree_with_the_one_sample_edge():
+    """The batch predictors of raw images (what the experiments time) on two renders: the
+    learned one gives a sample what ``predict`` gives it (from the calibrated rig, as a user
+    calls it; the same compiled program) and keeps the samples of a batch apart, the baseline
+    finds the rendered sphere's distance, and both lower to a program with a memory
+    analysis."""
+    from flax import nnx
+
+    from gijax.baseline.rtss import get_rtss_preset
+    from gijax.model import create_model, model_panorama
+    from gijax.predict import LearnedImagePredictor, RtssBatchPredictor, predict
+    from gijax.render import render_fronto_plane
+
+    from test_predict import G8, TINY
+
+    pano = model_panorama(TINY)
+    calibrated = builtin_rig("paper-train")
+    rig = scale_rig(calibrated, TINY.image_scale)          # the model's image size
+    samples = [render_fronto_plane(rig, 2.2, seed=s, pano=pano) for s in (4, 5)]
+    batch = {"images": np.stack([s["images"] for s in samples]),
+             "masks": np.stack([s["masks"] for s in samples]).astype(np.float32)}
+    model = create_model(TINY, seed=0)
+    # Larger weights than the initialisation's, so the untrained network's inverse distance
+    # spans the candidate range instead of sitting at one value: a wrong input would show.
+    nnx.update(model, jax.tree.map(lambda x: 2.0 * x, nnx.state(model, nnx.Param)))
+    learned = LearnedImagePredictor(model, rig, G8, pano)
+    for i, s in enumerate(samples):
+        one = learned({k: v[i:i + 1] for k, v in batch.items()})
+        alone = predict(model, calibrated, s["images"], s["masks"], G8, pano=pano,
+                        colours=False).inv_distance
+        assert np.ptp(alone) > 0.5 and bool(np.all(one.valid))
+        np.testing.assert_array_equal(np.asarray(one.inv_distance[0]), alone)
+    # In a batch each sample is its own: swapping them swaps the maps.
+    got = np.asarray(learned(batch).inv_distance)
+    swapped = np.asarray(learned({k: v[::-1] for k, v in batch.items()}).inv_distance)
+    assert got.shape == (2, *pano.shape) and not np.array_equal(got[0], got[1])
+    np.testing.assert_array_equal(got, swapped[::-1])
+    config = get_rtss_preset("RS-E16")
+    config = config.replace(match_size=min(config.match_size, rig.cameras[0].width))
+    rtss = RtssBatchPredictor(rig, G8, pano, config)
+    out = rtss(batch)
+    inv, valid = np.asarray(out.inv_distance), np.asarray(out.valid)
+    assert inv.shape == valid.shape == (2, *pano.shape) and valid.mean() > 0.5
+    # Near the sphere's 1/2.2 m on most estimated pixels: closer than half the inverse gap
+    # between the candidates around it (1.91 and 3.77 m, 0.26 1/m apart).
+    assert np.median(np.abs(inv[valid] - 1 / 2.2)) < 0.1
+    for predictor in (learned, rtss):
+        assert predictor.lower(batch).compile().memory_analysis() is not None

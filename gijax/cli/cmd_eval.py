@@ -104,7 +104,7 @@ def run(args) -> int:
     from gijax.bench.memory import device_peak_mib, host_peak_rss_mib
     from gijax.candidates.spec import model_candidates
     from gijax.evaluate.loop import evaluate_predictions
-    from gijax.predict import label_batches, learned_batch_predictor, rtss_batch_predictor
+    from gijax.predict import RtssBatchPredictor, learned_batch_predictor, sample_batches
     from gijax.store import load_model
     from gijax.train.sources import open_dataset, validation_batches
 
@@ -147,8 +147,8 @@ def run(args) -> int:
         name = mc.name
     else:
         rig, config, cand, how, pano = _rtss_setup(args, rig, reader)
-        predict = rtss_batch_predictor(reader, rig, cand, pano, config)
-        batches = label_batches(reader, args.batch)
+        predict = RtssBatchPredictor(rig, cand, pano, config)
+        batches = sample_batches(reader, args.batch)
         name = f"{config.name}/rtss"
     print(f"candidates: {how}; {len(cand)} from {float(cand[0]):.3f} to {float(cand[-1]):.3f} m",
           file=sys.stderr)

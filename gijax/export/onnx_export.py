@@ -52,8 +52,8 @@ from gijax.geometry.panorama_frame import panorama_rotation
 from gijax.geometry.rig import Rig, scale_rig
 from gijax.io.paths import atomic_path
 from gijax.model import (OmniStereoNet, check_model_candidates, model_grids, model_panorama,
-                         with_conv3d)
-from gijax.sweep.grids import SurrogateMaps, SweepGrids, fisheye_surrogates, surrogate_resampling
+                         on_fisheye_images, with_conv3d)
+from gijax.sweep.grids import SurrogateMaps, SweepGrids, surrogate_resampling
 
 IMAGES, MASKS = "images", "masks"
 RIG_INPUTS = ("intrinsics", "rotations", "translations", "reference", "candidates")
@@ -115,13 +115,6 @@ def _grids_jit(config, rig: Rig, candidates, pano: Panorama) -> tuple[SurrogateM
                                                                        pano)
 
 
-def _raw_forward(model: OmniStereoNet, images, masks, maps: SurrogateMaps,
-                 grids: SweepGrids) -> dict:
-    """The network on raw fisheye images: their surrogates, then the network call."""
-    surrogates, sur_masks = fisheye_surrogates(maps, images, masks)
-    return model(surrogates, sur_masks, grids)
-
-
 def _outputs(out: dict) -> tuple:
     # Validity leaves as float32: TensorRT 8.x has no boolean network outputs.
     out = dict(out, valid=out["valid"].astype(jnp.float32))
@@ -143,14 +136,14 @@ def build_function(model: OmniStereoNet, rig: Rig, candidates, rig_as_input: boo
                                              _grids_jit(cfg, rig, cand, pano))
 
         def fn(images, masks):
-            return _outputs(_raw_forward(model, images, masks, maps, grids))
+            return _outputs(on_fisheye_images(model, images, masks, maps, grids))
 
         return fn
     intrinsics_layout(rig)  # one camera model and size, or a clear error
 
     def fn(images, masks, intrinsics, rotations, translations, reference, cand):
         run_rig = rig_from_arrays(rig, intrinsics, rotations, translations, reference)
-        return _outputs(_raw_forward(model, images, masks,
+        return _outputs(on_fisheye_images(model, images, masks,
                                      surrogate_resampling(run_rig, cfg.surrogate_hw),
                                      model_grids(cfg, run_rig, cand, pano)))
 
@@ -410,7 +403,7 @@ def jax_reference(model: OmniStereoNet, rig: Rig, images, masks, candidates,
 
     @nnx.jit
     def run(v, im, m, c):
-        return _raw_forward(v, im, m, surrogate_resampling(run_rig, cfg.surrogate_hw),
+        return on_fisheye_images(v, im, m, surrogate_resampling(run_rig, cfg.surrogate_hw),
                             model_grids(cfg, run_rig, c, pano))
 
     out = run(eval_view(model), jnp.asarray(images, jnp.float32), jnp.asarray(masks, jnp.float32),
