@@ -152,19 +152,26 @@ def test_render_fault_probe_more_seeds(render_reference, tmp_path, seed):
 def test_ctrl_c_during_rendering_ends_in_one_line_and_the_same_command_continues(
         render_reference, tmp_path):
     rig_file, ref = render_reference
-    out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "gijax", "render", "--rig", str(rig_file), "--samples",
-           str(SAMPLES), "--out", str(out), "--seed", "3", "--pano", "32x8"]
-    csv = out / "traj_0000" / "files.csv"
-    proc = subprocess.Popen(cmd, env=child_env(CACHE, optimised=True),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 240
-    while time.time() < deadline and proc.poll() is None and not (
-            csv.exists() and len(csv.read_text().splitlines()) > 3):
-        time.sleep(0.01)
-    assert proc.poll() is None, "render ended before Ctrl-C"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    # The whole render takes a few seconds; a test process starved by the other worker can
+    # send its Ctrl-C after the last sample, when there is nothing left to interrupt. Such an
+    # attempt (exit 0, every sample written) proves nothing and is made again afresh.
+    for attempt in range(3):
+        out = tmp_path / f"out{attempt}"
+        cmd = [sys.executable, "-m", "gijax", "render", "--rig", str(rig_file), "--samples",
+               str(SAMPLES), "--out", str(out), "--seed", "3", "--pano", "32x8"]
+        csv = out / "traj_0000" / "files.csv"
+        proc = subprocess.Popen(cmd, env=child_env(CACHE, optimised=True),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        deadline = time.time() + 240
+        while time.time() < deadline and proc.poll() is None and not (
+                csv.exists() and len(csv.read_text().splitlines()) > 3):
+            time.sleep(0.01)
+        assert proc.poll() is None, "render ended before Ctrl-C"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+        if proc.returncode == 0 and len(csv.read_text().splitlines()) > SAMPLES:
+            continue
+        break
     assert proc.returncode == 130, err[-3000:]
     lines = [line for line in err.splitlines() if line.strip()]
     assert "Traceback" not in err
