@@ -12,8 +12,42 @@ if os.environ.get("GIJAX_TEST_XLA_DEFAULTS") != "1":
     if _FLAG not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
 
+# One persistent compilation cache per test process, shared with every subprocess it starts
+# (they inherit the environment): files compile the same programs again (a tiny network's
+# training step, the CLI's predictors and exports, the experiments' smoke runs), and each is
+# compiled once per worker. Per process, not per run: JAX writes an entry in place, so a second
+# xdist worker could read one half-written, and its warning would reach the stderr that tests
+# read. Only programs that take a while to compile are stored; the thousands of small eager ops
+# would cost more to write than to compile. The process that made a folder removes it.
+# GIJAX_TEST_COMPILE_CACHE=0 turns it off; a JAX_COMPILATION_CACHE_DIR set by the caller is used
+# as it is and never removed.
+_OWN_CACHE_VAR = "GIJAX_TEST_OWN_COMPILE_CACHE"      # "<pid>:<folder>" of the folder's maker
+if os.environ.get("GIJAX_TEST_COMPILE_CACHE") != "0" and (
+        "JAX_COMPILATION_CACHE_DIR" not in os.environ
+        or os.environ.get(_OWN_CACHE_VAR, "").split(":", 1)[0] not in ("", str(os.getpid()))):
+    import tempfile
+
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="gijax-test-xla-cache-")
+    os.environ[_OWN_CACHE_VAR] = f"{os.getpid()}:{os.environ['JAX_COMPILATION_CACHE_DIR']}"
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
+
 import jax  # noqa: E402
 import pytest  # noqa: E402
+
+if os.environ.get(_OWN_CACHE_VAR, "").startswith(f"{os.getpid()}:"):
+    # In case a plugin imported JAX before this file set its environment.
+    jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                      float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
+
+
+def pytest_unconfigure(config):
+    """The process that made a compilation cache folder (above) removes it."""
+    pid, _, folder = os.environ.get(_OWN_CACHE_VAR, "").partition(":")
+    if pid == str(os.getpid()) and folder == os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        import shutil
+
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 # The longest library test files (summed test seconds on 2 cores with a fresh compile cache,

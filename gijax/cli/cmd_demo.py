@@ -20,14 +20,15 @@ def register(sub) -> None:
         help="render fresh scenes, run the bundled model and the classical baseline, compare",
         description=(
             "Renders fresh scenes with exact labels on the training rig (paper-train, 3 cameras "
-            "0.31 m apart) and on a new rig (paper-test3, 4 cameras 1 m apart), runs the bundled "
-            "G16VV-cpu model with its training candidates, with the paper's list recomputed "
-            "for the rig (closed-form GI at the rig's camera spacing) and with gijax's "
-            "rig-aware GI list, and the classical RTSS baseline on each scene, prints MAE / RMSE / "
-            "SSIM (inverse distance, 1/m, the paper's definitions; the mean over the scenes and "
-            "the per-scene range), time and a verdict per rig, and writes demo.png (inputs, "
-            "ground truth, predictions, error maps of each rig's first scene), points.ply "
-            "(coloured point cloud) and demo.json (every scene's numbers)."),
+            "0.31 m apart) and on a new rig (paper-test3, 4 cameras 1 m apart), runs the default "
+            f"bundled model ({DEFAULT_MODEL}; --ckpt picks another) with its training "
+            "candidates, with the paper's list recomputed for the rig (closed-form GI at the "
+            "rig's camera spacing) and with gijax's rig-aware GI list, and the classical RTSS "
+            "baseline on each scene, prints MAE / RMSE / SSIM (inverse distance, 1/m, the "
+            "paper's definitions; the mean over the scenes and the per-scene range), time and a "
+            "verdict per rig, and writes demo.png (inputs, ground truth, predictions, error maps "
+            "of each rig's first scene), points.ply (coloured point cloud) and demo.json (every "
+            "scene's numbers)."),
     )
     p.add_argument("--out", default="gijax-demo", help="output folder (default: gijax-demo)")
     p.add_argument("--seed", type=int, default=None,
