@@ -617,3 +617,36 @@ def test_example_rig_commands_parse_and_compare_scene_by_scene():
     assert holds and p["scenes"] == 3 and p["lower"] == 2 and abs(p["mean"] + 0.01) < 1e-12
     p, holds = out[f"before vs {ex.BASELINE}"]
     assert not holds and p["lower"] == 0
+
+
+def test_demo_seeds_command_parses_and_rows_pick_the_best_list_and_count_wins():
+    """The fixed-seed demo experiment records a ``gijax demo`` command gijax's parser accepts
+    with its seed, scene count and model; per rig it takes the learned list with the lowest
+    mean MAE and counts the scenes it wins against the baseline (a hand-made demo table)."""
+    import shlex
+
+    from experiments import demo_seeds as ds
+    from gijax.cli import build_parser
+
+    args = build_parser().parse_args(
+        shlex.split(ds.gijax_command(ds.demo_argv(4, 3, "G16VV-cpu-zncc", Path("o/seed-4"))))[1:])
+    assert (args.seed, args.scenes, args.model, args.baseline, args.out) == (
+        4, 3, "G16VV-cpu-zncc", ds.BASELINE, "o/seed-4")
+    assert len(set(ds.SCALES["cpu"]["seeds"])) == 5
+
+    def method(maes):
+        return {"mae": float(np.mean(maes)), "mae_per_scene": maes}
+
+    doc = {"table": {
+        "paper-train": {"M training": method([0.03, 0.05, 0.04]),
+                        "M spacing": method([0.02, 0.06, 0.01]),
+                        ds.BASELINE: method([0.025, 0.02, 0.02])},
+        "paper-test3": {"M training": method([0.09, 0.08, 0.07]),
+                        "M spacing": method([0.10, 0.10, 0.10]),
+                        ds.BASELINE: method([0.08, 0.09, 0.095])}}}
+    rows = {r["rig"]: r for r in ds.seed_rows(7, doc)}
+    train, test3 = rows["paper-train"], rows["paper-test3"]
+    assert train["method"] == "M spacing" and train["scenes_won"] == 2 and train["ahead"] is False
+    assert test3["method"] == "M training" and test3["scenes_won"] == 2 and test3["ahead"] is True
+    assert train["seed"] == 7 and train["scenes"] == 3
+    assert abs(test3["baseline_mae"] - np.mean([0.08, 0.09, 0.095])) < 1e-12
