@@ -7,7 +7,8 @@ RS-E32 (mean MAE over the seed's scenes, in 1/m as the paper defines it, and how
 each wins). Target: the learned model ahead of RS-E32 on mean MAE on both rigs for every seed.
 
 Each seed's demo folder is kept under ``<work>/demo_seeds/<weights id>/seed-<S>`` and reused
-when its ``demo.json`` names the same model (a new bundle has new weights, hence new folders).
+when its ``demo.json`` names the same model and source revision (a new bundle has new
+weights, hence new folders).
 Writes ``<out>.md``, ``<out>.json`` and, for ``--scale cpu``, the ``demo-seeds`` section of
 ``experiments/RESULTS.md``.
 """
@@ -50,11 +51,13 @@ def demo_argv(seed: int, scenes: int, model: str, out: Path) -> list:
             "--baseline", BASELINE, "--out", str(out), "--quiet"]
 
 
-def ensure_demo(folder: Path, seed: int, scenes: int, model: str) -> dict:
+def ensure_demo(folder: Path, seed: int, scenes: int, model: str, code: str) -> dict:
     """The demo's ``demo.json`` for ``seed``, run (as a subprocess, the command a user types)
-    unless the folder already holds a complete one for the same model and scene count."""
+    unless the folder already holds a complete one for the same model, scene count and source
+    revision ``code`` (a changed demo is run again)."""
     doc = read_json(folder / "demo.json")
-    if doc and doc.get("model") == model and doc.get("scenes_per_rig") == scenes:
+    if (doc and doc.get("model") == model and doc.get("scenes_per_rig") == scenes
+            and doc.get("git_revision") == code):
         log(f"seed {seed}: reusing {folder}")
         return doc
     argv = demo_argv(seed, scenes, model, folder)
@@ -66,6 +69,7 @@ def ensure_demo(folder: Path, seed: int, scenes: int, model: str) -> dict:
     if doc is None:
         raise RuntimeError(f"gijax demo wrote no readable {folder / 'demo.json'}")
     doc["seconds"] = time.perf_counter() - t0
+    doc["git_revision"] = code
     write_json(folder / "demo.json", doc)
     return doc
 
@@ -109,7 +113,7 @@ def main(argv=None) -> int:
     for seed in cfg["seeds"]:
         folder = work / NAME / wid / f"seed-{seed}"
         commands.append(gijax_command(demo_argv(seed, cfg["scenes"], model, folder)))
-        rows.extend(seed_rows(seed, ensure_demo(folder, seed, cfg["scenes"], model)))
+        rows.extend(seed_rows(seed, ensure_demo(folder, seed, cfg["scenes"], model, code)))
     met = all(r["ahead"] for r in rows)
     ahead = sum(r["ahead"] for r in rows)
     target = (f"**{'MET' if met else 'MISSED'}**: the learned model ahead of {BASELINE} on mean "

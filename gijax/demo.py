@@ -138,7 +138,10 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
             for label, cand in cands.items():
                 bar.set_postfix_str(f"{name} scene {j + 1}/{scenes}: {config.name} ({label})")
                 learned = LearnedPredictor(net, cand, pano, colours=False)
-                inv, secs, metrics, res = _evaluate(learned, small, sample, cand)
+                # The rig at its calibrated size, as every predictor takes it: the images
+                # (rendered at the model's size) are then used as they are. The scaled rig
+                # would read as a calibration of that size and have them scaled again.
+                inv, secs, metrics, res = _evaluate(learned, rig, sample, cand)
                 per_scene.setdefault(f"{config.name} {label}", []).append(
                     MethodResult(f"{config.name} {label}", inv, secs, metrics))
                 if cloud is None:
@@ -147,7 +150,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
             bar.set_postfix_str(f"{name} scene {j + 1}/{scenes}: {baseline}")
             # The baseline's figures are on the model's training range, like the learned rows.
             inv, secs, metrics, _ = _evaluate(RtssPredictor(baseline, pano=pano, colours=False),
-                                              small, sample, train_cand)
+                                              rig, sample, train_cand)
             per_scene.setdefault(baseline, []).append(MethodResult(baseline, inv, secs, metrics))
             bar.update(1)
         table[name] = {m: summarize_scenes(results) for m, results in per_scene.items()}

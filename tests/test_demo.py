@@ -90,3 +90,48 @@ def test_the_figure_keeps_the_panorama_aspect_and_marks_missing_pixels(tmp_path)
     _figure(path, [("paper-train", sample, methods)], 3)
     assert cv2.imread(str(path)) is not None
     assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.png"]
+
+
+def test_every_method_gets_the_calibrated_rig_and_the_images_at_the_models_size(
+        tmp_path, monkeypatch):
+    """Predictors take a rig at its calibrated size and scale the images to the model's size
+    from it; the demo renders at the model's size, so it must hand over the calibrated rig (a
+    rig already scaled would have the learned model's images scaled a second time). The
+    rendering and the methods are stand-ins that record what they are given."""
+    import gijax.demo as demo
+    import gijax.render
+    from gijax.geometry.layouts import builtin_rig
+    from gijax.model import model_panorama
+    from gijax.store import load_model
+
+    _, config, _ = load_model(demo.DEFAULT_MODEL)
+    pano = model_panorama(config)
+    rendered_for, given = [], []
+
+    def fake_render(rig, seed, pano):
+        rendered_for.append(rig)
+        n, h, w = rig.num_cameras, rig.cameras[0].height, rig.cameras[0].width
+        rng = np.random.default_rng(seed)
+        return {"images": rng.integers(0, 255, (n, h, w, 3), np.uint8),
+                "masks": np.ones((n, h, w), np.uint8),
+                "pano_distance": np.full((pano.height, pano.width), 3.0, np.float32)}
+
+    def fake_evaluate(predictor, rig, sample, candidates):
+        given.append((type(predictor).__name__, rig, sample["images"].shape))
+        inv = np.full((pano.height, pano.width), 1 / 3, np.float32)
+        res = {"distance": np.full(inv.shape, 3.0, np.float32), "valid": np.ones(inv.shape, bool),
+               "colour": np.zeros(inv.shape + (3,), np.float32)}
+        return inv, 0.1, {"mae": 0.01, "rmse": 0.02, "ssim": 0.9, "coverage": 1.0}, res
+
+    monkeypatch.setattr(gijax.render, "render_sample", fake_render)
+    monkeypatch.setattr(demo, "_evaluate", fake_evaluate)
+    run_demo(tmp_path / "demo", seed=3, scenes=1, progress=False)
+
+    assert len(given) == 2 * 4                   # 2 rigs x (3 candidate lists + the baseline)
+    for name, made in zip(demo.DEMO_RIGS, rendered_for):
+        calibrated = builtin_rig(name)
+        assert made.cameras[0].width == round(calibrated.cameras[0].width * config.image_scale)
+        for kind, rig, shape in [g for g in given if g[1].num_cameras == calibrated.num_cameras]:
+            assert rig.cameras[0].width == calibrated.cameras[0].width, kind
+            assert shape[2] == made.cameras[0].width, kind
+    assert {kind for kind, _, _ in given} == {"LearnedPredictor", "RtssPredictor"}
