@@ -475,11 +475,18 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
     lenses = sum(1 for d in mix if d["role"].startswith("mix-lens-"))
     layouts = sum(1 for d in mix if d["role"].startswith("mix-layout-"))
     init = trained.get("init")
-    # The bundle holds the best validated checkpoint, which can be older than the last step.
+    # The bundle holds the run folder's best validated checkpoint, which can be older than the
+    # last step. A folder restored from a resume pack holds only the validations since, so an
+    # earlier, better validation (its weights gone with the pack it was in) is named beside it.
     vals = [r for r in records if r.get("split") == "val"]
-    best = min(vals, key=lambda r: r["mae"]) if vals else None
-    kept = (f"these weights: step {best['step']}, the best validation MAE ({best['mae']:.4f})"
-            if best else "these weights: the newest checkpoint (no validation)")
+    held = bundled_step(run)
+    best = next((r for r in vals if r["step"] == held), None)
+    overall = min(vals, key=lambda r: r["mae"]) if vals else None
+    kept = (f"these weights: step {best['step']}, validation MAE {best['mae']:.4f}"
+            + (" (the best)" if overall is best else
+               f" (the best the run folder held; step {overall['step']}'s "
+               f"{overall['mae']:.4f} was not kept)")
+            if best else f"these weights: step {held}, the newest checkpoint (no validation)")
     start = ("random weights" if not init else
              f"the bundled {init['model']} of revision {init['git_revision']} (weights "
              f"sha256 {init['weights_sha256_12']}...; its own PROVENANCE.json there says how "
@@ -503,8 +510,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
            "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "models", "spacing_m",
                                        "cameras", "samples", "seed") if k in d} for d in data],
            "runs": run_pieces(records),
-           "checkpoint": (f"step {best['step']}, the best by validation MAE" if best
-                          else "the newest (no validation)"),
+           "checkpoint": kept.removeprefix("these weights: "),
            "validation": vals,
            "validation_metrics": "gijax definitions (labels clamped to the candidate range, "
                                  "pooled pixels)",
@@ -518,6 +524,18 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
         for f in Path(tmp).iterdir():
             shutil.copy(f, written / f.name)
     log(f"wrote the bundle {written}")
+
+
+def bundled_step(run: Path) -> Optional[int]:
+    """The step of the checkpoint :func:`gijax.train.bundle.write_bundle` takes from ``run``:
+    the newest in its best-checkpoint folder, else the newest periodic one."""
+    from gijax.store.checkpoints import BEST, PERIODIC
+
+    for sub in (BEST, PERIODIC):
+        steps = [int(p.name) for p in (run / sub).glob("*") if p.name.isdigit()]
+        if steps:
+            return max(steps)
+    return None
 
 
 def table_markdown(rows: list) -> str:

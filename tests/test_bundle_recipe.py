@@ -139,3 +139,18 @@ def test_the_long_recipe_trains_its_design_from_random_weights_with_a_committed_
     # The fine-tuning recipe is unchanged: the bundle's preset from the bundle, no pack.
     fine = B.train_config(scales.SCALES["cpu"], B.RECIPES["cpu"], 0)
     assert fine.preset == "G16VV-cpu" and fine.init_from == "G16VV-cpu" and fine.pack is None
+
+
+def test_the_bundled_step_is_the_checkpoint_the_bundle_takes(tmp_path):
+    """The bundle takes the newest checkpoint of the run's best folder, else the newest periodic
+    one; a folder restored from a pack holds no best checkpoint of the validations before it,
+    so the provenance must name the step it actually holds."""
+    run = tmp_path / "run"
+    assert B.bundled_step(run) is None
+    for step in (8250, 8500, 9000):
+        (run / "checkpoints" / str(step)).mkdir(parents=True)
+    (run / "checkpoints" / "tmp-9250").mkdir()            # an unfinished save: not a step
+    assert B.bundled_step(run) == 9000
+    (run / "best" / "9000").mkdir(parents=True)
+    (run / "checkpoints" / "9250").mkdir()
+    assert B.bundled_step(run) == 9000
