@@ -464,9 +464,6 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
             data: list, trained: dict, targets: list) -> None:
     """The bundle: best validated checkpoint, config, and beside them PROVENANCE.json (every
     command, seeds, steps, validations, targets), the learning curve and the figures."""
-    import shutil
-    import tempfile
-
     from gijax.train.bundle import write_bundle
 
 
@@ -516,13 +513,10 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                                  "pooled pixels)",
            "targets": targets, "learning_curve": "learning_curve.png",
            "figures": [f"validation_{t}.png" for t in TESTS]}
-    written = write_bundle(run, bundle, doc)
-    with tempfile.TemporaryDirectory() as tmp:
-        shutil.copy(figures["curve"], Path(tmp) / "learning_curve.png")
-        for t in TESTS:
-            shutil.copy(figures[t], Path(tmp) / f"validation_{t}.png")
-        for f in Path(tmp).iterdir():
-            shutil.copy(f, written / f.name)
+    # The figures go in with the weights, in one atomic replacement of the bundle folder.
+    written = write_bundle(run, bundle, doc, figures={
+        "learning_curve.png": figures["curve"],
+        **{f"validation_{t}.png": figures[t] for t in TESTS}})
     log(f"wrote the bundle {written}")
 
 

@@ -184,3 +184,32 @@ def test_bundled_model_fits_the_network_and_beats_a_constant():
     mae = np.mean(np.abs(np.asarray(res["inv_distance"], np.float64)[scored] - inv_gt))
     constant = np.mean(np.abs(np.median(inv_gt) - inv_gt))
     assert mae < 0.5 * constant, (mae, constant)
+
+
+def test_a_bundle_with_its_figures_is_replaced_whole_and_a_users_file_is_never_taken(tmp_path):
+    """A bundle's figures (learning curve, validation figures) are written with it, in the same
+    replacement, so a bundle published with figures can be published again; a file of another
+    name in the folder (the user's) makes the folder not a bundle; a figure of another name is
+    refused before any work."""
+    cfg, config_file = _run_config(tmp_path)
+    model = create_model(cfg.model_config(), seed=3)
+    png = tmp_path / "curve.png"
+    png.write_bytes(b"\x89PNG first")
+    figures = {"learning_curve.png": png, "validation_paper-test1.png": png}
+    out = save_bundle(model, config_file, tmp_path / "bundle", {"v": 1}, figures=figures)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "PROVENANCE.json", "config.json", "learning_curve.png", "validation_paper-test1.png",
+        "weights.npz"]
+    png.write_bytes(b"\x89PNG second")
+    save_bundle(model, config_file, out, {"v": 2}, figures={"learning_curve.png": png})
+    assert (out / "learning_curve.png").read_bytes() == b"\x89PNG second"
+    assert not (out / "validation_paper-test1.png").exists()   # the old bundle went whole
+    (out / "notes.png").write_text("mine")
+    with pytest.raises(ValueError, match=r"exists and is not a bundle \(it holds notes.png\)"):
+        save_bundle(model, config_file, out, {"v": 3})
+    assert (out / "notes.png").read_text() == "mine"
+    with pytest.raises(ValueError, match="bundle figures must be named"):
+        save_bundle(model, config_file, tmp_path / "b2", figures={"curve.png": png})
+    with pytest.raises(ValueError, match="bundle figures must be named"):
+        save_bundle(model, config_file, tmp_path / "b2", figures={"weights.npz": png})
+    assert not (tmp_path / "b2").exists()

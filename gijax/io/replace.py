@@ -43,18 +43,27 @@ class FolderKind:
       noun: how they name what it holds ('bundle', 'prediction').
       files: every file name the kind writes (nothing else, no subfolders, no links).
       record: the file that marks a folder as written by gijax (None: the file names decide).
+      patterns: further names the kind writes, as shell patterns (``fnmatch``), for files
+        whose names vary (a bundle's figures, ``validation_<rig>.png``).
     """
 
     name: str
     noun: str
     files: frozenset[str]
     record: str | None = None
+    patterns: tuple[str, ...] = ()
+
+    def names(self, name: str) -> bool:
+        """Whether ``name`` is a file name this kind writes."""
+        from fnmatch import fnmatchcase
+
+        return name in self.files or any(fnmatchcase(name, p) for p in self.patterns)
 
     def holds_only_its_files(self, folder: Path) -> bool:
         """Whether ``folder`` is a real folder holding nothing but regular files of this kind
         (an empty folder does)."""
         return folder.is_dir() and not folder.is_symlink() and all(
-            p.name in self.files and p.is_file() and not p.is_symlink()
+            self.names(p.name) and p.is_file() and not p.is_symlink()
             for p in folder.iterdir())
 
     def owns(self, folder: Path) -> bool:
@@ -86,7 +95,7 @@ def check_replaceable(folder: str | os.PathLike, kind: FolderKind, inputs=()) ->
         if item == where or where in item.parents:
             raise ValueError(f"{kind.name} {folder}: holds the input {item}; choose a new path")
     if not kind.owns(folder):
-        others = sorted(p.name for p in folder.iterdir() if p.name not in kind.files)
+        others = sorted(p.name for p in folder.iterdir() if not kind.names(p.name))
         if others:
             what = f"it holds {', '.join(others[:3])}{', ...' if len(others) > 3 else ''}"
         elif not kind.holds_only_its_files(folder):
@@ -130,7 +139,7 @@ def replace_folder(folder: str | os.PathLike, kind: FolderKind, write: Callable[
         tmp = temporary_folder_beside(folder)
         try:
             result = write(tmp)
-            stray = [p.name for p in tmp.iterdir() if p.name not in kind.files]
+            stray = [p.name for p in tmp.iterdir() if not kind.names(p.name)]
             if stray:
                 raise RuntimeError(f"{kind.name} writer made files outside its kind: {stray}")
             aside = None

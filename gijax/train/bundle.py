@@ -20,8 +20,12 @@ from gijax.store.bundles import PROVENANCE_FILE, WEIGHTS_FILE, flatten_variables
 from gijax.store.configs import CONFIG_FILE
 
 
+# Figures that describe a bundle (its learning curve, predictions on validation rigs) are
+# written with it, in the same atomic replacement, under these names only.
+FIGURE_PATTERNS = ("learning_curve.png", "validation_*.png")
 BUNDLE = FolderKind("bundle folder", "bundle",
-                    frozenset({CONFIG_FILE, WEIGHTS_FILE, PROVENANCE_FILE}))
+                    frozenset({CONFIG_FILE, WEIGHTS_FILE, PROVENANCE_FILE}),
+                    patterns=FIGURE_PATTERNS)
 
 
 def check_replaceable(out_dir: str | os.PathLike, inputs=()) -> Path:
@@ -33,16 +37,23 @@ def check_replaceable(out_dir: str | os.PathLike, inputs=()) -> Path:
 
 
 def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLike,
-                provenance: dict | None = None, candidates=None, inputs=()) -> Path:
+                provenance: dict | None = None, candidates=None, inputs=(),
+                figures: dict | None = None) -> Path:
     """Write ``model``'s variables, a copy of its run's ``config.json`` and the provenance.
 
     ``candidates`` (a run's learned list) replaces the config's training list in the copy.
+    ``figures`` maps file names of :data:`FIGURE_PATTERNS` to PNG files copied in.
     ``out_dir`` must be new or a bundle that holds none of ``inputs``
     (:func:`check_replaceable`). The folder is replaced whole and atomically, an interrupted
     call recovered by the next, one writer at a time (:func:`gijax.io.replace.replace_folder`).
     """
     from flax import nnx
 
+    figures = dict(figures or {})
+    bad = [name for name in figures if not BUNDLE.names(name) or name in BUNDLE.files]
+    if bad:
+        raise ValueError(f"bundle figures must be named {' or '.join(FIGURE_PATTERNS)}; "
+                         f"found {bad}")
     out_dir = check_replaceable(out_dir, (config_file, *inputs))
     weights = flatten_variables(nnx.to_pure_dict(nnx.state(model)))
 
@@ -56,16 +67,21 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
         np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f"
                                         else v for k, v in weights.items()})
         (tmp / PROVENANCE_FILE).write_text(json.dumps(provenance or {}, indent=2) + "\n")
+        for name, source in figures.items():
+            shutil.copyfile(source, tmp / name)
 
     replace.replace_folder(out_dir, BUNDLE, write, (config_file, *inputs))
     return out_dir
 
 
 def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
-                 provenance: dict | None = None, which: str = "best") -> Path:
-    """The bundle of a training run (its best validated checkpoint by default)."""
+                 provenance: dict | None = None, which: str = "best",
+                 figures: dict | None = None) -> Path:
+    """The bundle of a training run (its best validated checkpoint by default), with
+    ``figures`` as :func:`save_bundle` takes them."""
     from gijax.store.runs import load_for_inference
 
     run_dir = Path(run_dir)
     model, _, cand = load_for_inference(run_dir, which=which)
-    return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance, candidates=cand)
+    return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance, candidates=cand,
+                       figures=figures)
