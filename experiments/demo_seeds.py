@@ -75,18 +75,12 @@ def ensure_demo(folder: Path, seed: int, scenes: int, model: str, code: str) -> 
 
 
 def seed_rows(seed: int, doc: dict) -> list:
-    """One row per rig: the learned model's best list (by mean MAE) against the baseline."""
-    rows = []
-    for rig, methods in doc["table"].items():
-        base = methods[BASELINE]
-        learned = {m: v for m, v in methods.items() if m != BASELINE}
-        best = min(learned, key=lambda m: learned[m]["mae"])
-        wins = sum(a < b for a, b in zip(learned[best]["mae_per_scene"], base["mae_per_scene"]))
-        rows.append({"seed": seed, "rig": rig, "method": best, "mae": learned[best]["mae"],
-                     "baseline_mae": base["mae"], "scenes_won": int(wins),
-                     "scenes": len(base["mae_per_scene"]),
-                     "ahead": bool(learned[best]["mae"] < base["mae"])})
-    return rows
+    """One row per rig: the demo's own verdict (the learned model's best list by mean MAE
+    against the baseline, scenes won), with the seed."""
+    from gijax.demo import rig_verdicts
+
+    return [{"seed": seed, "rig": rig, **v}
+            for rig, v in rig_verdicts(doc["table"], BASELINE).items()]
 
 
 def main(argv=None) -> int:

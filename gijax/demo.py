@@ -189,20 +189,30 @@ def summarize_scenes(results: list[MethodResult]) -> dict:
     return out
 
 
-def verdict(table: dict, baseline: str) -> str:
-    """Per rig: the learned model's best candidate list against the baseline, by mean MAE and
-    by how many scenes each wins."""
-    lines = []
+def rig_verdicts(table: dict, baseline: str) -> dict:
+    """Per rig of a demo table: the learned model's best candidate list (the lowest mean MAE)
+    against the baseline: ``{rig: {"method", "mae", "baseline_mae", "scenes_won", "scenes",
+    "ahead"}}`` (scenes won: per-scene MAE strictly below the baseline's; ahead: mean MAE
+    strictly below)."""
+    out = {}
     for rig, methods in table.items():
         base = methods[baseline]
         learned = {m: v for m, v in methods.items() if m != baseline}
         best = min(learned, key=lambda m: learned[m]["mae"])
         wins = sum(a < b for a, b in zip(learned[best]["mae_per_scene"], base["mae_per_scene"]))
-        n = len(base["mae_per_scene"])
-        ahead = learned[best]["mae"] < base["mae"]
-        lines.append(f"{rig}: {'learned' if ahead else baseline} ahead on mean MAE "
-                     f"({best} {learned[best]['mae']:.4f} vs {baseline} {base['mae']:.4f}); "
-                     f"the learned model wins {wins} of {n} scenes")
+        out[rig] = {"method": best, "mae": learned[best]["mae"], "baseline_mae": base["mae"],
+                    "scenes_won": int(wins), "scenes": len(base["mae_per_scene"]),
+                    "ahead": bool(learned[best]["mae"] < base["mae"])}
+    return out
+
+
+def verdict(table: dict, baseline: str) -> str:
+    """Per rig: the learned model's best candidate list against the baseline, by mean MAE and
+    by how many scenes each wins (:func:`rig_verdicts`)."""
+    lines = [f"{rig}: {'learned' if v['ahead'] else baseline} ahead on mean MAE "
+             f"({v['method']} {v['mae']:.4f} vs {baseline} {v['baseline_mae']:.4f}); "
+             f"the learned model wins {v['scenes_won']} of {v['scenes']} scenes"
+             for rig, v in rig_verdicts(table, baseline).items()]
     return "verdict: " + "\nverdict: ".join(lines)
 
 
