@@ -152,12 +152,18 @@ def test_render_fault_probe_more_seeds(render_reference, tmp_path, seed):
 def test_ctrl_c_during_rendering_ends_in_one_line_and_the_same_command_continues(
         render_reference, tmp_path):
     rig_file, ref = render_reference
+    # A suite started in the background of a non-interactive shell runs with SIGINT ignored,
+    # and children inherit that (Python then installs no KeyboardInterrupt handler): the child
+    # puts Python's handler back first, as a terminal's foreground process has it, then runs
+    # what ``python -m gijax`` runs.
+    launcher = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                "from gijax.cli import run; run()")
     # The whole render takes a few seconds; a test process starved by the other worker can
     # send its Ctrl-C after the last sample, when there is nothing left to interrupt. Such an
     # attempt (exit 0, every sample written) proves nothing and is made again afresh.
     for attempt in range(3):
         out = tmp_path / f"out{attempt}"
-        cmd = [sys.executable, "-m", "gijax", "render", "--rig", str(rig_file), "--samples",
+        cmd = [sys.executable, "-c", launcher, "render", "--rig", str(rig_file), "--samples",
                str(SAMPLES), "--out", str(out), "--seed", "3", "--pano", "32x8"]
         csv = out / "traj_0000" / "files.csv"
         proc = subprocess.Popen(cmd, env=child_env(CACHE, optimised=True),
