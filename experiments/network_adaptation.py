@@ -1,6 +1,7 @@
 """Label-free adaptation of the bundled network to a rig it never saw, scored with labels.
 
-The bundled model (``G16VV-cpu``) was trained on 3-4 camera rigs facing one way. This script
+The bundled model (by default the one the demo runs; ``--model`` names another) was trained on
+3-4 camera rigs facing one way. This script
 takes the 5-camera ring ``ring5-0.5m`` (``experiments/learned_candidates.py``: a regular
 pentagon, 0.5 m between neighbours; more cameras than any rig of the bundle's mixture) and:
 
@@ -54,7 +55,6 @@ from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "network_adaptation"
 SECTION = "network-adaptation"
-MODEL = "G16VV-cpu"           # the bundled model adapted
 TEACHER = "RS-E32"
 PANO_HW = (32, 128)           # the bundle's output panorama (labels must match it)
 SEEDS = {"frames": 701, "test": 702}
@@ -89,9 +89,9 @@ def ensure_data(work: Path, cfg: dict, role: str) -> dict:
             "seed": SEEDS[role], **made}
 
 
-def adapt_argv(frames: Path, out: Path, cfg: dict, weights: dict, val: Path) -> list:
+def adapt_argv(model: str, frames: Path, out: Path, cfg: dict, weights: dict, val: Path) -> list:
     """The ``gijax adapt`` command line equivalent to :func:`adapt`'s call."""
-    argv = ["adapt", "--ckpt", MODEL, "--frames", frames, "--out", out,
+    argv = ["adapt", "--ckpt", model, "--frames", frames, "--out", out,
             "--photometric", weights["photometric"], "--smoothness", weights["smoothness"],
             "--steps", cfg["steps"], "--lr", cfg["lr"], "--batch", cfg["batch"],
             "--seed", 0, "--max-frames", cfg["frames"], "--val", val,
@@ -101,16 +101,19 @@ def adapt_argv(frames: Path, out: Path, cfg: dict, weights: dict, val: Path) -> 
     return argv
 
 
-def adapt(work: Path, cfg: dict, name: str, frames: Path, test: Path) -> dict:
-    """Adapt the bundle with variant ``name`` (resumes a stopped run; reuses a finished one)."""
+def adapt(work: Path, cfg: dict, model: str, name: str, frames: Path, test: Path) -> dict:
+    """Adapt ``model`` with variant ``name`` (resumes a stopped run; reuses a finished one).
+    The run folder is keyed by the model's weights, so adapting another model starts afresh."""
     from gijax.train.rig_adaptation import adapt_network, work_folder
     from gijax.train.unlabeled import LabelFree
 
     weights = dict(VARIANTS[name][1])
     if weights["teacher"] is None:
         weights["teacher"] = cfg["teacher"]
-    out = work / "adapted" / f"{RING}-{name}"
-    argv = adapt_argv(frames, out, cfg, weights, test)
+    from gijax.store import resolve_model_path
+
+    out = work / "adapted" / f"{RING}-{name}-{weights_id(resolve_model_path(model))}"
+    argv = adapt_argv(model, frames, out, cfg, weights, test)
     command = gijax_command(argv)
     done = [r for r in metrics_records(work_folder(out)) if "loss" in r]
     t0 = time.perf_counter()
@@ -119,7 +122,7 @@ def adapt(work: Path, cfg: dict, name: str, frames: Path, test: Path) -> dict:
         result = None
     else:
         log(f"{name}: {command}")
-        result = adapt_network(MODEL, [frames], out, objective=LabelFree(**weights),
+        result = adapt_network(model, [frames], out, objective=LabelFree(**weights),
                                steps=cfg["steps"], lr=cfg["lr"], batch_size=cfg["batch"],
                                seed=0, max_frames=cfg["frames"], teacher_preset=TEACHER,
                                val=test, val_every=cfg["val_every"], progress=True,
@@ -210,32 +213,38 @@ def main(argv=None) -> int:
     parser = script_parser(__doc__)
     add_common_arguments(parser, NAME, SCALES, seed=False,
                          scale_help="smoke: pipeline check (a few minutes); cpu: the reported "
-                                    "figures (82 minutes on a busy 2-core machine; resumable, and "
+                                    "figures (14 minutes on 2 cores beside a background training; resumable, and "
                                     "a rerun reuses the data, runs and evaluations)",
                          work_help="work folder for data, adaptation runs and cached evaluations "
                                    "(default experiments/out/work_<scale>)")
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS),
                         help="which adaptations to run (default both)")
+    parser.add_argument("--model", default=None, metavar="PATH|NAME",
+                        help="the model adapted, as gijax adapt's --ckpt takes it (default the "
+                             "demo's default bundled model)")
     args = parser.parse_args(argv)
     cfg = SCALES[args.scale]
     work, out, results = resolve_paths(args, NAME)
     started = time.perf_counter()
+    from gijax.demo import DEFAULT_MODEL
+
+    model = args.model or DEFAULT_MODEL
     data = [ensure_data(work, cfg, role) for role in ("frames", "test")]
     frames, test = Path(data[0]["path"]), Path(data[1]["path"])
     from gijax.store import resolve_model_path
 
-    bundle = resolve_model_path(MODEL)
-    labels = {"before": f"{MODEL} before (training list)",
-              "before-spacing": f"{MODEL} before (list recomputed for the ring: spacing)",
+    bundle = resolve_model_path(model)
+    labels = {"before": f"{model} before (training list)",
+              "before-spacing": f"{model} before (list recomputed for the ring: spacing)",
               TEACHER: f"{TEACHER} (classical; the teacher)"}
-    rows = {"before": score(work, test, MODEL, bundle, "train"),
-            "before-spacing": score(work, test, MODEL, bundle, "spacing"),
+    rows = {"before": score(work, test, model, bundle, "train"),
+            "before-spacing": score(work, test, model, bundle, "spacing"),
             TEACHER: score(work, test, TEACHER, None, None)}
     runs = []
     for name in args.variants:
-        run = adapt(work, cfg, name, frames, test)
+        run = adapt(work, cfg, model, name, frames, test)
         runs.append(run)
-        rows[name] = score(work, test, f"{MODEL}-adapted-{name}", run["bundle"], "train")
+        rows[name] = score(work, test, f"{model}-adapted-{name}", run["bundle"], "train")
         labels[name] = run["label"]
     for k, r in rows.items():
         log(f"  {labels[k]}: MAE {r['mae']:.4f}")
@@ -248,10 +257,10 @@ def main(argv=None) -> int:
                 f"{RING}, first held-out scene ({args.scale} scale)")
     curve = out.with_name(out.name + "_curves.png")
     if runs:
-        curves(runs, rows, curve, f"label-free adaptation of {MODEL} to {RING} "
+        curves(runs, rows, curve, f"label-free adaptation of {model} to {RING} "
                                   f"({args.scale} scale; held-out MAE never used to choose)")
     meta = {"command": command_line(f"{NAME}.py", argv if argv is not None else sys.argv[1:]),
-            "scale": args.scale, "config": cfg, "model": MODEL,
+            "scale": args.scale, "config": cfg, "model": model,
             "model_weights": weights_id(bundle), "rig": RING, "data": data, "adaptations": runs,
             "git_revision": revision(), "machine": machine_info(),
             "seconds": time.perf_counter() - started}
@@ -265,7 +274,7 @@ def main(argv=None) -> int:
     md = [f"# Label-free network adaptation ({args.scale})", "",
           f"Command `{meta['command']}` at git {meta['git_revision'][:12]}, "
           f"{meta['machine']['platform']}, {meta['machine']['cpu_count']} CPUs, "
-          f"{meta['seconds']:.0f} s in all ({cfg['summary']}). The bundled {MODEL} (weights "
+          f"{meta['seconds']:.0f} s in all ({cfg['summary']}). The bundled {model} (weights "
           f"{meta['model_weights']}) adapted to {RING}, a 5-camera rig outside its training "
           f"mixture, on unlabeled frames (seed {SEEDS['frames']}); scored on held-out scenes "
           f"(seed {SEEDS['test']}) whose labels never reach a loss or choose a checkpoint.",

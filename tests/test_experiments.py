@@ -564,10 +564,10 @@ def test_network_adaptation_commands_parse_and_claims_compare_scene_by_scene(tmp
     for name, (_, weights) in na.VARIANTS.items():
         weights = {**weights, "teacher": weights["teacher"] if weights["teacher"] is not None
                    else cfg["teacher"]}
-        argv = na.adapt_argv(tmp_path / "frames", tmp_path / "out", cfg, weights,
-                             tmp_path / "test")
+        argv = na.adapt_argv("G16VV-cpu-zncc", tmp_path / "frames", tmp_path / "out", cfg,
+                             weights, tmp_path / "test")
         args = build_parser().parse_args(shlex.split(na.gijax_command(argv))[1:])
-        assert (args.ckpt, args.steps, args.lr, args.batch) == (na.MODEL, cfg["steps"],
+        assert (args.ckpt, args.steps, args.lr, args.batch) == ("G16VV-cpu-zncc", cfg["steps"],
                                                                 cfg["lr"], cfg["batch"])
         assert (args.photometric, args.smoothness, args.teacher) == (
             weights["photometric"], weights["smoothness"], weights["teacher"])
