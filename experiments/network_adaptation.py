@@ -213,8 +213,9 @@ def main(argv=None) -> int:
     parser = script_parser(__doc__)
     add_common_arguments(parser, NAME, SCALES, seed=False,
                          scale_help="smoke: pipeline check (a few minutes); cpu: the reported "
-                                    "figures (14 minutes on 2 cores beside a background training; resumable, and "
-                                    "a rerun reuses the data, runs and evaluations)",
+                                    "figures (14 minutes on 2 cores beside a background "
+                                    "training; resumable, and a rerun reuses the data, runs "
+                                    "and evaluations)",
                          work_help="work folder for data, adaptation runs and cached evaluations "
                                    "(default experiments/out/work_<scale>)")
     parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS),
