@@ -306,6 +306,27 @@ def test_experiment_perturbation_is_within_its_stated_bounds():
         assert all(10.0 - 1e-3 <= t <= 30.0 + 1e-3 for t in moved["translation_mm"][1:]), moved
 
 
+def test_experiment_report_draws_each_perturbed_camera_and_tables_every_camera(tmp_path):
+    """The experiment's figure and table from two rows of known errors (the figure is a PNG
+    of the size drawn; the table has a line per camera with the before -> after figures)."""
+    from experiments.calibration_refinement import plot, table
+
+    rows = [{"rig": rig, "seed": 0, "cameras": cams, "start_rotation_deg": [0.0] + [1.0] * k,
+             "final_rotation_deg": [0.0] + [0.05] * k, "start_translation_mm": [0.0] + [20.0] * k,
+             "final_translation_mm": [0.0] + [2.5] * k, "mae_true": 0.1, "mae_perturbed": 0.15,
+             "mae_refined": 0.1025}
+            for rig, cams, k in (("a", ["c0", "c1", "c2"], 2), ("b", ["c0", "c1"], 1))]
+    plot(rows, tmp_path / "errors.png")
+    with open(tmp_path / "errors.png", "rb") as f:
+        head = f.read(24)
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")) == (1210, 418)
+    lines = table(rows).splitlines()
+    assert len(lines) == 2 + 5
+    assert "| a | 0 | c1 | 1.000 -> 0.050 | 20.0 -> 2.5 |" in lines[3]
+    assert "0.1000" in lines[2] and "0.1025" in lines[2] and "0.1500" in lines[2]
+
+
 def test_a_dataset_folder_reads_as_one_frame_per_sample(tmp_path):
     from gijax.calibrate.frames import read_frames
     from gijax.data.writer import write_dataset
