@@ -293,6 +293,30 @@ def test_command_names_a_missing_camera_image(tmp_path, capsys):
     assert not (tmp_path / "out.yaml").exists()
 
 
+def test_command_smoothness_option_reaches_the_refinement_and_refuses_a_negative_weight(
+        tmp_path, capsys):
+    """--smoothness is the objective's weight (its help states RefineConfig's default); a
+    negative weight is one line naming the field, and no rig file is written."""
+    from gijax.cli import main
+    from gijax.io.rigfile import save_rig
+
+    with pytest.raises(SystemExit):
+        main(["rig", "refine", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert f"(default {ref.RefineConfig().smoothness}, RefineConfig's;" in help_text
+    truth = triangle_rig()
+    images, _ = frames(truth)
+    save_rig(truth, tmp_path / "rig.yaml")
+    folders = _write_frames(tmp_path, truth, images[:1])
+    argv = ["rig", "refine", str(tmp_path / "rig.yaml"), "--frames", *folders, "--out",
+            str(tmp_path / "out.yaml"), "--steps", "3", "--scale", "1", "--start-distance", "2",
+            "--no-progress"]
+    assert main(argv + ["--smoothness", "-1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "RefineConfig.smoothness must be >= 0; found -1.0" in err[0], err
+    assert not (tmp_path / "out.yaml").exists()
+
+
 def test_experiment_perturbation_is_within_its_stated_bounds():
     from experiments.calibration_refinement import perturb
     from gijax.geometry.layouts import layout_rig

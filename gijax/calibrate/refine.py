@@ -128,6 +128,8 @@ class RefineConfig:
         for name in ("lr_rotation", "lr_translation", "lr_focal", "lr_centre", "lr_depth"):
             if not getattr(self, name) > 0:
                 raise bad_field("RefineConfig", name, "> 0", getattr(self, name))
+        if not self.smoothness >= 0:
+            raise bad_field("RefineConfig", "smoothness", ">= 0", self.smoothness)
 
     def replace(self, **kw) -> "RefineConfig":
         return dataclasses.replace(self, **kw)
