@@ -152,7 +152,7 @@ def plot(rows: list, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 3.8))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.4))
     labels, x = [], 0
     for r in rows:
         for i, cam in enumerate(r["cameras"][1:], start=1):
@@ -168,7 +168,7 @@ def plot(rows: list, path: Path) -> None:
         ax.axhline(target, color="k", lw=0.8, ls="--", label="target")
         ax.set_yscale("log")
         ax.set_xticks(range(x))
-        ax.set_xticklabels(labels, fontsize=6)
+        ax.set_xticklabels(labels, fontsize=6, rotation=35, ha="right")
         ax.set_title(title)
         ax.legend(fontsize=7)
     fig.suptitle("pose error per camera before / after refinement (camera 0 is the gauge)")

@@ -344,7 +344,7 @@ def test_experiment_report_draws_each_perturbed_camera_and_tables_every_camera(t
     with open(tmp_path / "errors.png", "rb") as f:
         head = f.read(24)
     assert head[:8] == b"\x89PNG\r\n\x1a\n"
-    assert (int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")) == (1210, 418)
+    assert (int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")) == (1210, 484)
     lines = table(rows).splitlines()
     assert len(lines) == 2 + 5
     assert "| a | 0 | c1 | 1.000 -> 0.050 | 20.0 -> 2.5 |" in lines[3]
