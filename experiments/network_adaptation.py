@@ -1,9 +1,9 @@
 """Label-free adaptation of the bundled network to a rig it never saw, scored with labels.
 
 The bundled model (by default the one the demo runs; ``--model`` names another) was trained on
-3-4 camera rigs facing one way. This script
-takes the 5-camera ring ``ring5-0.5m`` (``experiments/learned_candidates.py``: a regular
-pentagon, 0.5 m between neighbours; more cameras than any rig of the bundle's mixture) and:
+3-4 camera rigs facing one way. This script takes the 5-camera ring ``ring5-0.5m``
+(``experiments/learned_candidates.py``: a regular pentagon, 0.5 m between neighbours; more
+cameras than any rig of the bundle's mixture) and:
 
 1. renders ``frames`` scenes of the ring (seed 701) whose images alone are used (labels never
    reach a loss: ``gijax adapt`` builds its training arrays without them), and ``test``
@@ -101,18 +101,18 @@ def adapt_argv(model: str, frames: Path, out: Path, cfg: dict, weights: dict, va
     return argv
 
 
-def adapt(work: Path, cfg: dict, model: str, name: str, frames: Path, test: Path) -> dict:
-    """Adapt ``model`` with variant ``name`` (resumes a stopped run; reuses a finished one).
-    The run folder is keyed by the model's weights, so adapting another model starts afresh."""
+def adapt(work: Path, cfg: dict, model: str, model_id: str, name: str, frames: Path,
+          test: Path) -> dict:
+    """Adapt ``model`` (weights id ``model_id``) with variant ``name`` (resumes a stopped run;
+    reuses a finished one). The run folder is keyed by the weights, so adapting another model
+    starts afresh."""
     from gijax.train.rig_adaptation import adapt_network, work_folder
     from gijax.train.unlabeled import LabelFree
 
     weights = dict(VARIANTS[name][1])
     if weights["teacher"] is None:
         weights["teacher"] = cfg["teacher"]
-    from gijax.store import resolve_model_path
-
-    out = work / "adapted" / f"{RING}-{name}-{weights_id(resolve_model_path(model))}"
+    out = work / "adapted" / f"{RING}-{name}-{model_id}"
     argv = adapt_argv(model, frames, out, cfg, weights, test)
     command = gijax_command(argv)
     done = [r for r in metrics_records(work_folder(out)) if "loss" in r]
@@ -235,6 +235,7 @@ def main(argv=None) -> int:
     from gijax.store import resolve_model_path
 
     bundle = resolve_model_path(model)
+    bundle_id = weights_id(bundle)
     labels = {"before": f"{model} before (training list)",
               "before-spacing": f"{model} before (list recomputed for the ring: spacing)",
               TEACHER: f"{TEACHER} (classical; the teacher)"}
@@ -243,7 +244,7 @@ def main(argv=None) -> int:
             TEACHER: score(work, test, TEACHER, None, None)}
     runs = []
     for name in args.variants:
-        run = adapt(work, cfg, model, name, frames, test)
+        run = adapt(work, cfg, model, bundle_id, name, frames, test)
         runs.append(run)
         rows[name] = score(work, test, f"{model}-adapted-{name}", run["bundle"], "train")
         labels[name] = run["label"]
@@ -262,7 +263,7 @@ def main(argv=None) -> int:
                                   f"({args.scale} scale; held-out MAE never used to choose)")
     meta = {"command": command_line(f"{NAME}.py", argv if argv is not None else sys.argv[1:]),
             "scale": args.scale, "config": cfg, "model": model,
-            "model_weights": weights_id(bundle), "rig": RING, "data": data, "adaptations": runs,
+            "model_weights": bundle_id, "rig": RING, "data": data, "adaptations": runs,
             "git_revision": revision(), "machine": machine_info(),
             "seconds": time.perf_counter() - started}
     strip = ("first_prediction",)
