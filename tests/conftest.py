@@ -55,14 +55,16 @@ def pytest_unconfigure(config):
 # workers in collection order, so handing these out first keeps one worker from starting a long
 # file when the other is nearly done.
 LONGEST_FIRST = ("test_transforms", "test_train", "test_model", "test_faults", "test_export",
-                 "test_tutorial", "test_train_faults", "test_precision", "test_train_parallel",
+                 "test_train_faults", "test_precision", "test_train_parallel",
                  "test_network_adaptation", "test_rtss", "test_nn", "test_release_parity",
                  "test_reliability", "test_design", "test_learned_candidates",
                  "test_panorama_frame", "test_matching", "test_render", "test_augmentations",
                  "test_real_rig_edges", "test_bundle", "test_candidates", "test_cameras")
-# The experiments' end-to-end smoke runs come after every library test: they run the library
-# through the experiment scripts, so a library defect is reported by its own test first.
-LAST = ("test_experiments",)
+# The end-to-end runs come after every library test: they run the library through the
+# experiment scripts, the tutorial notebook and the demo, so a library defect is reported by
+# its own test first. The experiments' smoke runs (the longest file) are handed out first, so
+# the other worker runs the tutorial and the demo beside them instead of waiting.
+LAST = ("test_experiments", "test_tutorial", "test_demo")
 
 
 def pytest_collection_modifyitems(config, items):

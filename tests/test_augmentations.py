@@ -19,6 +19,10 @@ from gijax.data.augment import AUGMENT_PRESETS, AugmentConfig, augment_preset, a
 from gijax.data.calibration_error import CalibrationError, perturb_rig
 from gijax.geometry.layouts import builtin_rig
 
+# Compiled without XLA's optimisation passes (conftest's quick_compiles): these checks do
+# not depend on them, and they dominate this module's time.
+pytestmark = pytest.mark.usefixtures("quick_compiles")
+
 H, W = 16, 24
 ALL_ON = AugmentConfig(p_vignetting=1.0, p_blur=1.0, p_colour=1.0, p_noise=1.0, p_jpeg=1.0,
                        p_body=1.0)

@@ -21,6 +21,10 @@ from gijax.geometry.layouts import builtin_rig, synthetic_camera
 from gijax.geometry.rig import make_rig
 from gijax.geometry.rotations import axis_angle_to_matrix
 
+# Compiled without XLA's optimisation passes (conftest's quick_compiles): these checks do
+# not depend on them, and they dominate this module's time.
+pytestmark = pytest.mark.usefixtures("quick_compiles")
+
 G16 = [0.5, 0.5436655530390901, 0.5933598538089077, 0.6505899686755604, 0.7174058117693126,
        0.7966693499997578, 0.892501608318949, 1.0110614299826677, 1.161983802830304,
        1.3612365930547528, 1.637348559910646, 2.0467867239341255, 2.7192485658566654,

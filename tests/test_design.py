@@ -16,6 +16,10 @@ from gijax.design import (DesignSpec, at_least_two, constraint_report, evaluate_
 from gijax.geometry.occluder import Cylinder, cylinder_hit
 from gijax.geometry.panorama import Panorama
 
+# Compiled without XLA's optimisation passes (conftest's quick_compiles): these checks do
+# not depend on them, and they dominate this module's time.
+pytestmark = pytest.mark.usefixtures("quick_compiles")
+
 # Small ray grid and list: the tests exercise the same code paths at a fraction of the cost.
 SMALL = dict(pano=Panorama.hemisphere(4, 8), num_candidates=8, samples=2)
 

@@ -23,6 +23,10 @@ from gijax.nn.presets import ModelConfig
 from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
 from gijax.train.losses import smooth_l1_loss
 
+# Compiled without XLA's optimisation passes (conftest's quick_compiles): these checks do
+# not depend on them, and they dominate this module's time.
+pytestmark = pytest.mark.usefixtures("quick_compiles")
+
 TINY = ModelConfig(
     name="tiny-grad", num_candidates=8, candidates="gi", loss="smooth_l1", features="plain",
     cost_volume="variance", feature_channels=4, feature_blocks=(1, 1), unet_in=4, unet_base=4,

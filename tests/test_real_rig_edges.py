@@ -17,6 +17,10 @@ from gijax.geometry.panorama import Panorama
 from gijax.geometry.rig import make_rig
 from gijax.predict import fit_images, point_colours, write_prediction
 
+# Compiled without XLA's optimisation passes (conftest's quick_compiles): these checks do
+# not depend on them, and they dominate this module's time.
+pytestmark = pytest.mark.usefixtures("quick_compiles")
+
 SIZE = 64
 FOV = 150.0     # degrees: the panorama's rim (90 degrees off the axis) is seen by no camera
 
