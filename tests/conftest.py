@@ -106,6 +106,11 @@ def _without_optimisations():
     jax.config.update("jax_disable_most_optimizations", True)
     yield
     jax.config.update("jax_disable_most_optimizations", previous)
+    # JAX's in-memory caches do not key on this setting: an eager op or a jitted function
+    # compiled without the passes here would be reused, unoptimised, by later modules whose
+    # checks compare optimised programs to within a few float32 ulps. (The persistent cache
+    # keys on the compile options, so its entries stay apart.)
+    jax.clear_caches()
 
 
 @pytest.fixture(scope="module")

@@ -11,9 +11,6 @@ from hypothesis import strategies as st
 from gijax.geometry import cameras as C
 from gijax.geometry.rotations import axis_angle_to_matrix
 
-# Compiled without XLA's optimisation passes (conftest's quick_compiles): these checks do
-# not depend on them, and they dominate this module's time.
-pytestmark = pytest.mark.usefixtures("quick_compiles")
 
 W, H = 1224, 1028  # the paper's evaluation-board image size
 _proj = jax.jit(C.project)
