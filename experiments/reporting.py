@@ -76,11 +76,16 @@ def publish_section(results_md: Path, section: str, body: str, figures) -> None:
 
 def save_figure(path: Path, sample: dict, panels: list, title: str) -> None:
     """Input fisheyes, ground-truth inverse distance, then one row per method: prediction and
-    absolute error (1/m). ``panels`` is a list of (label, inverse distance (H, W))."""
+    absolute error (1/m). ``panels`` is a list of (label, inverse distance (H, W)).
+
+    Every panorama (truth, predictions, errors) is drawn at one size and the panorama's own
+    aspect, so shapes compare across panels; the truth's row carries both colour scales."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
 
     from gijax.evaluate.labels import usable_label
 
@@ -92,32 +97,46 @@ def save_figure(path: Path, sample: dict, panels: list, title: str) -> None:
     vmax = max(vmax, 0.05)
     images = sample["images"]
     ncam = len(images)
-    rows = 2 + len(panels)
-    fig = plt.figure(figsize=(10, 1.3 * rows + 2.2))
-    grid = fig.add_gridspec(rows, max(ncam, 2), height_ratios=[2.2] + [1.0] * (rows - 1))
+    h, w = gt.shape
+    # Two panoramas side by side across a 10-inch figure; each map row is as tall as a
+    # panorama drawn at that width (plus its title).
+    map_h = 4.6 * h / w + 0.35
+    rows = 1 + len(panels)
+    fig = plt.figure(figsize=(10, 2.4 + map_h * rows), layout="constrained")
+    outer = fig.add_gridspec(2, 1, height_ratios=[2.4, map_h * rows])
+    cams = outer[0].subgridspec(1, ncam)
     for c in range(ncam):
-        ax = fig.add_subplot(grid[0, c])
+        ax = fig.add_subplot(cams[0, c])
         ax.imshow(images[c])
         ax.set_title(f"camera {c}", fontsize=8)
         ax.axis("off")
-    ax = fig.add_subplot(grid[1, :])
-    im = ax.imshow(gt, cmap="turbo", vmin=0.0, vmax=vmax, aspect="auto")
+    maps = outer[1].subgridspec(rows, 2)
+    inv_scale = dict(cmap="turbo", vmin=0.0, vmax=vmax)
+    err_scale = dict(cmap="magma", vmin=0.0, vmax=0.25 * vmax)
+    ax = fig.add_subplot(maps[0, 0])
+    ax.imshow(gt, aspect="equal", **inv_scale)
     ax.set_title("ground truth inverse distance (1/m)", fontsize=8)
     ax.axis("off")
-    fig.colorbar(im, ax=ax, fraction=0.02, pad=0.01)
-    half = max(ncam, 2) // 2
+    # The right half of the truth's row holds the two colour scales every map below uses.
+    scales = maps[0, 1].subgridspec(2, 1)
+    for k, (scale, label) in enumerate([(inv_scale, "inverse distance (1/m): truth, predictions"),
+                                        (err_scale, "|error| (1/m)")]):
+        cax = fig.add_subplot(scales[k])
+        bar = fig.colorbar(ScalarMappable(Normalize(scale["vmin"], scale["vmax"]),
+                                          scale["cmap"]), cax=cax, orientation="horizontal")
+        bar.ax.tick_params(labelsize=7)
+        bar.set_label(label, fontsize=7)
     for r, (label, inv) in enumerate(panels):
         inv = np.asarray(inv, np.float64)
         err = np.where(valid, np.abs(inv - gt), np.nan)
-        ax = fig.add_subplot(grid[2 + r, :half])
-        ax.imshow(inv, cmap="turbo", vmin=0.0, vmax=vmax, aspect="auto")
+        ax = fig.add_subplot(maps[1 + r, 0])
+        ax.imshow(inv, aspect="equal", **inv_scale)
         ax.set_title(f"{label}: prediction", fontsize=7)
         ax.axis("off")
-        ax = fig.add_subplot(grid[2 + r, half:])
-        im = ax.imshow(err, cmap="magma", vmin=0.0, vmax=0.25 * vmax, aspect="auto")
+        ax = fig.add_subplot(maps[1 + r, 1])
+        ax.imshow(err, aspect="equal", **err_scale)
         ax.set_title(f"{label}: |error|, MAE {np.nanmean(err):.4f} 1/m", fontsize=7)
         ax.axis("off")
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
     save_png(fig, path, dpi=90)
     plt.close(fig)

@@ -528,6 +528,34 @@ def test_concat_models_cannot_take_four_cameras():
     assert new_layout.unsupported(get_preset("G16VV-cpu"), 4) is None
 
 
+def test_method_figure_draws_every_panorama_at_one_size_and_its_own_aspect(monkeypatch):
+    """Truth, predictions and errors at one size and the panorama's aspect (a 3-camera rig
+    once drew predictions a third of the row wide and the truth stretched across it)."""
+    import matplotlib.pyplot as plt
+
+    drawn = {}
+    monkeypatch.setattr(reporting, "save_png",
+                        lambda fig, path, dpi: drawn.update(fig=fig, path=path))
+    monkeypatch.setattr(plt, "close", lambda fig: None)
+    h, w = 16, 64
+    dist = np.full((h, w), 4.0)
+    dist[:4, :8] = np.inf                                      # unlabelled pixels
+    sample = {"pano_distance": dist, "images": np.zeros((3, 32, 32, 3), np.uint8)}
+    panels = [("a", np.full((h, w), 0.25)), ("b", np.full((h, w), 0.3))]
+    reporting.save_figure(Path("x.png"), sample, panels, "title")
+    fig = drawn["fig"]
+    fig.canvas.draw()
+    maps = [ax for ax in fig.axes if ax.images and ax.images[0].get_array().shape == (h, w)]
+    assert len(maps) == 1 + 2 * len(panels)
+    sizes = np.array([ax.get_window_extent().size for ax in maps])
+    np.testing.assert_allclose(sizes, np.broadcast_to(sizes[0], sizes.shape), rtol=0.02)
+    assert sizes[0, 0] / sizes[0, 1] == pytest.approx(w / h, rel=0.03)
+    # Error panels share one colour scale with a bar, as the inverse distances do.
+    bars = [ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()]
+    assert any("|error|" in b for b in bars) and any("inverse distance" in b for b in bars)
+    plt.close(fig)
+
+
 def test_results_section_update(tmp_path):
     md = tmp_path / "RESULTS.md"
     md.write_text("# R\n\n<!-- t:begin -->\nold\n<!-- t:end -->\n\nkept\n")
