@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 from gijax.geometry import cameras as C
 from gijax.geometry.rotations import axis_angle_to_matrix
 
-
 W, H = 1224, 1028  # the paper's evaluation-board image size
 _proj = jax.jit(C.project)
 _unproj = jax.jit(C.unproject)
