@@ -533,7 +533,7 @@ def test_method_figure_draws_every_panorama_at_one_size_and_its_own_aspect(monke
     once drew predictions a third of the row wide and the truth stretched across it)."""
     import matplotlib.pyplot as plt
 
-    drawn = {}
+    drawn, close = {}, plt.close
     monkeypatch.setattr(reporting, "save_png",
                         lambda fig, path, dpi: drawn.update(fig=fig, path=path))
     monkeypatch.setattr(plt, "close", lambda fig: None)
@@ -553,7 +553,7 @@ def test_method_figure_draws_every_panorama_at_one_size_and_its_own_aspect(monke
     # Error panels share one colour scale with a bar, as the inverse distances do.
     bars = [ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()]
     assert any("|error|" in b for b in bars) and any("inverse distance" in b for b in bars)
-    plt.close(fig)
+    close(fig)                               # plt.close itself is patched away above
 
 
 def test_results_section_update(tmp_path):
