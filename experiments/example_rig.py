@@ -71,9 +71,9 @@ SCALES = {
     "smoke": dict(train=4, val=2, test=2, steps=2, batch=2, lr=1e-4, val_every=2,
                   image_scale=0.5, summary="pipeline check only, not evidence: 128 px images, "
                                            "4 training scenes, 2 steps, 2 held-out scenes"),
-    "cpu": dict(train=200, val=16, test=48, steps=1000, batch=8, lr=1e-4, val_every=250,
+    "cpu": dict(train=200, val=16, test=48, steps=800, batch=8, lr=1e-4, val_every=200,
                 image_scale=1.0, summary="256 px images, 200 training and 16 validation "
-                                         "scenes, 1000 steps of 8, 48 held-out scenes"),
+                                         "scenes, 800 steps of 8, 48 held-out scenes"),
 }
 
 
@@ -212,7 +212,7 @@ def main(argv=None) -> int:
     parser = script_parser(__doc__)
     add_common_arguments(parser, NAME, SCALES, seed=False,
                          scale_help="smoke: pipeline check (minutes); cpu: the reported figures "
-                                    "(about 75 minutes on 2 cores; resumable, and a rerun reuses "
+                                    "(about 65 minutes on 2 cores; resumable, and a rerun reuses "
                                     "the data, the run and the evaluations)",
                          work_help="work folder for the rig file, data, the run and the "
                                    "evaluations (default experiments/out/work_<scale>/"
