@@ -7,7 +7,9 @@ For every rig and seed:
    ``1000 * seed + k``); their labels are used only to score;
 2. perturb every camera except camera 0 by a rotation of 0.5-2 degrees about a random axis and
    a translation of 1-3 cm in a random direction (drawn from ``seed``);
-3. refine the perturbed rig from the images (``gijax.calibrate.refine_rig``, poses only);
+3. refine the perturbed rig from the images (``gijax.calibrate.refine_rig``, poses only, in
+   ``rounds`` rounds: each after the first restarts from the classical baseline's distances
+   matched at the calibration the previous one reached);
 4. score: per camera the rotation and translation error against the truth modulo the gauge
    (camera 0 fixed, the camera 0-1 distance held: ``gauge_aligned_errors``) before and after,
    and the classical baseline's (RS-E32) inverse-distance MAE on the same scenes (rendered at
@@ -45,15 +47,20 @@ from gijax.bench.report import markdown_grid  # noqa: E402
 RIGS = ("paper-train", "paper-test3")
 SCALES = {
     # image scale of the 1024 px rigs the refinement works at, rendered frames per rig, Adam
-    # steps, seeds, label and RTSS panorama (H, W), refinement panorama (H, W), the edge-aware
-    # smoothness weight, and the image scale RTSS's MAE is scored at (the poses carry over)
-    "smoke": dict(image_scale=0.125, frames=2, steps=30, seeds=(0,), pano_hw=(16, 64),
+    # steps per round, rounds, seeds, label and RTSS panorama (H, W), refinement panorama
+    # (H, W), the edge-aware smoothness weight, and the image scale RTSS's MAE is scored at
+    # (the poses carry over)
+    "smoke": dict(image_scale=0.125, frames=2, steps=30, rounds=2, seeds=(0,), pano_hw=(16, 64),
                   refine_hw=(16, 64), smoothness=0.02, mae_scale=0.125),
     # 512 px: at 256 px the objective's own minimum sits 0.3 deg / 8 mm from the truth (a
     # refinement started at the true poses drifts there), at 512 px within 0.1 deg. RTSS is
     # scored at 256 px, where RS-E32 is at its best on these rigs (its 7-pixel window and 32
     # candidates are sized for it: MAE 0.11 at 256 px, 0.42 at 512 px on paper-test3).
-    "cpu": dict(image_scale=0.5, frames=3, steps=400, seeds=(0, 1), pano_hw=(40, 160),
+    # Three rounds: the first round's distances were matched at the perturbed calibration,
+    # and on far scenes a translation error hides in them (one round left 10-27 mm); matched
+    # again at the refined poses they let the translations go (a fourth and fifth round moved
+    # no camera by more than 0.4 mm more).
+    "cpu": dict(image_scale=0.5, frames=3, steps=400, rounds=3, seeds=(0, 1), pano_hw=(40, 160),
                 refine_hw=(48, 192), smoothness=0.002, mae_scale=0.25),
 }
 TARGET_DEG, TARGET_MM, TARGET_MAE = 0.1, 3.0, 0.05
@@ -112,7 +119,7 @@ def run_case(name: str, seed: int, cfg: dict) -> dict:
     t0 = time.perf_counter()
     result = refine_rig(start, images, masks,
                         RefineConfig(steps=cfg["steps"], pano_hw=tuple(cfg["refine_hw"]),
-                                     smoothness=cfg["smoothness"]),
+                                     smoothness=cfg["smoothness"], rounds=cfg["rounds"]),
                         labels=[f"{name}/{1000 * seed + k}" for k in range(cfg["frames"])])
     t_refine = time.perf_counter() - t0
     before = gauge_aligned_errors(start, truth)
@@ -222,7 +229,7 @@ def main(argv=None) -> int:
           f"{meta['git_revision'][:12]}, {meta['machine']['platform']}, "
           f"{meta['machine']['cpu_count']} CPUs; {meta['seconds']:.0f} s in all. Images at "
           f"{cfg['image_scale']} of 1024 px, {cfg['frames']} frames per rig, {cfg['steps']} "
-          f"Adam steps, refinement panorama {cfg['refine_hw'][0]}x{cfg['refine_hw'][1]}, "
+          f"Adam steps in each of {cfg['rounds']} rounds, refinement panorama {cfg['refine_hw'][0]}x{cfg['refine_hw'][1]}, "
           f"smoothness {cfg['smoothness']}; errors modulo the gauge (camera 0 fixed, camera 0-1 "
           f"distance held); RS-E32's MAE (1/m) on the same scenes at {cfg['mae_scale']} of "
           f"1024 px with each calibration's poses.", "",

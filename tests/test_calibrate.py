@@ -137,6 +137,50 @@ def test_a_perturbed_camera_is_recovered():
     assert result.moved["translation_mm"][0] == 0.0
 
 
+def test_a_second_round_is_a_fresh_run_from_the_baselines_distances_at_the_refined_rig(
+        monkeypatch):
+    """``rounds=2`` is two one-round refinements in a row: the second starts from the rig the
+    first reached, at the classical baseline's distances matched there (a stand-in here, so
+    that no matcher compiles), with a fresh optimiser; the history runs on across both, the
+    losses span both, and ``moved`` is measured from the rig given."""
+    truth = triangle_rig()
+    images, masks = frames(truth)
+    start = turn(truth, 2, (0.3, -1.0, 0.4), 2.0, (0.0, 0.012, -0.009))
+    calls = []
+
+    def baseline_stand_in(rig, image, mask, pano):
+        calls.append(rig)
+        return np.full(pano.shape, 1.0 / RADII[(len(calls) - 1) % len(RADII)])
+
+    monkeypatch.setattr(ref, "initial_inverse_distance", baseline_stand_in)
+    config = ref.RefineConfig(steps=6, blur=(1.5, 0.7), pano_hw=PANO_HW, lr_rotation=2e-3,
+                              lr_translation=1e-3, lr_depth=0.01, min_texture=0.01)
+    first = ref.refine_rig(start, images, masks, config, initial_inv=true_inverse_distance(),
+                           progress=False)
+    assert calls == []
+    second = ref.refine_rig(first.rig, images, masks, config, progress=False)
+    assert len(calls) == len(RADII)
+    calls.clear()
+    both = ref.refine_rig(start, images, masks, config.replace(rounds=2),
+                          initial_inv=true_inverse_distance(), progress=False)
+    assert len(calls) == len(RADII)
+    np.testing.assert_array_equal(np.asarray(both.rig.rotations), np.asarray(second.rig.rotations))
+    np.testing.assert_array_equal(np.asarray(both.rig.translations),
+                                  np.asarray(second.rig.translations))
+    assert [h["step"] for h in both.history] == list(range(12))
+    assert [h["round"] for h in both.history] == [0] * 6 + [1] * 6
+    assert [h["loss"] for h in both.history] == [h["loss"] for h in first.history
+                                                 + second.history]
+    assert both.loss_before == first.loss_before and both.loss_after == second.loss_after
+    assert both.initial is start
+    expected = ref.pose_change(start, second.rig)
+    np.testing.assert_allclose(both.moved["rotation_deg"], expected["rotation_deg"])
+    np.testing.assert_allclose(both.moved["translation_mm"], expected["translation_mm"])
+    with pytest.raises(ValueError, match=r"RefineConfig\.rounds must be an integer >= 1; "
+                                         r"found 0"):
+        config.replace(rounds=0)
+
+
 def test_gauge_of_apply_calibration():
     """Any update leaves camera 0 and the 0-1 distance unchanged, and moves the others."""
     with jax.enable_x64(True):
@@ -314,6 +358,10 @@ def test_command_smoothness_option_reaches_the_refinement_and_refuses_a_negative
     assert main(argv + ["--smoothness", "-1"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "RefineConfig.smoothness must be >= 0; found -1.0" in err[0], err
+    assert not (tmp_path / "out.yaml").exists()
+    assert main(argv + ["--rounds", "0"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["gijax rig: error: --rounds must be at least 1; found 0"], err
     assert not (tmp_path / "out.yaml").exists()
 
 

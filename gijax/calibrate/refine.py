@@ -101,6 +101,11 @@ class RefineConfig:
         intensities in [0, 1]) a camera's image must have in every frame.
       min_overlap: the least fraction of a frame's panorama that two cameras must see at the
         initial distances.
+      rounds: how many times the whole schedule runs. Every round after the first starts
+        again from the classical baseline's distances, now matched at the calibration the
+        previous round reached, with a fresh optimiser: the first round's starting distances
+        were matched at the wrong calibration, and a translation error can hide in them
+        (moving a camera and bending the distances together keeps the photometric agreement).
     """
 
     steps: int = 300
@@ -117,6 +122,7 @@ class RefineConfig:
     edge_scale: float = 0.05
     min_texture: float = 0.02
     min_overlap: float = 0.05
+    rounds: int = 1
 
     def __post_init__(self):
         if not self.blur or any(not s > 0 for s in self.blur):
@@ -130,6 +136,8 @@ class RefineConfig:
                 raise bad_field("RefineConfig", name, "> 0", getattr(self, name))
         if not self.smoothness >= 0:
             raise bad_field("RefineConfig", "smoothness", ">= 0", self.smoothness)
+        if int(self.rounds) != self.rounds or self.rounds < 1:
+            raise bad_field("RefineConfig", "rounds", "an integer >= 1", self.rounds)
 
     def replace(self, **kw) -> "RefineConfig":
         return dataclasses.replace(self, **kw)
@@ -296,10 +304,11 @@ def refinement_loss(params: dict, rig: Rig, images: Array, masks: Array, pano: P
 @dataclasses.dataclass
 class RefineResult:
     """``rig`` refined (the input's names, masks, panorama frame), ``initial`` the input rig,
-    ``history`` of ``{'step', 'level', 'loss', 'data'}``, ``loss_before`` / ``loss_after``
-    (the photometric data term at the finest blur, initial calibration with the RTSS
-    distances vs refined calibration with refined distances), ``moved`` (:func:`pose_change`),
-    ``frames`` (per frame ``texture`` per camera and ``overlap``, see :func:`frame_texture`,
+    ``history`` of ``{'step', 'round', 'level', 'loss', 'data'}`` (steps counted across
+    rounds), ``loss_before`` / ``loss_after`` (the photometric data term at the finest blur,
+    initial calibration with the RTSS distances vs refined calibration with refined distances,
+    after the last round), ``moved`` (:func:`pose_change`), ``frames`` (per frame ``texture``
+    per camera and ``overlap`` of the first round, see :func:`frame_texture`,
     :func:`frame_overlap`) and ``inv_distance`` (F, H, W) refined."""
 
     rig: Rig
@@ -378,8 +387,10 @@ _STEPS: dict = {}
 
 
 def _step_fn(pano: Panorama, config: RefineConfig):
-    """The jitted Adam step, one per (panorama, settings) in a process."""
-    key = (pano, config)
+    """The jitted Adam step, one per (panorama, step settings) in a process (keyed on what
+    the step reads, so runs differing in steps, rounds or checks share it)."""
+    key = (pano, config.lr_rotation, config.lr_translation, config.lr_focal, config.lr_centre,
+           config.lr_depth, config.smoothness, config.edge_scale)
     if key not in _STEPS:
         tx = optax.scale_by_adam()
         rates = {"rotation": config.lr_rotation, "translation": config.lr_translation,
@@ -413,14 +424,36 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
       masks: (F, N, h, w), 1 = valid, or None for the rig's own masks.
       config: :class:`RefineConfig`.
       labels: one name per frame for messages (default its index).
-      initial_inv: (F, H, W) starting inverse distances instead of the classical baseline's.
+      initial_inv: (F, H, W) starting inverse distances instead of the classical baseline's
+        (for the first round; later rounds start from the baseline's, see
+        :attr:`RefineConfig.rounds`).
       progress, log: progress bar, and a callback for one-line notes.
 
     Raises ValueError (one line) for frames with too little texture or overlap.
     """
+    say = log or (lambda _line: None)
+    result = _refine_round(rig, images, masks, config, labels, initial_inv, progress, 0)
+    for k in range(1, int(config.rounds)):
+        say(f"round {k}: photometric loss {result.loss_before:.5f} -> {result.loss_after:.5f}; "
+            f"restarting from the classical baseline's distances at the refined calibration")
+        nxt = _refine_round(result.rig, images, masks, config, labels, None, progress, k)
+        history = result.history + [dict(h, step=h["step"] + len(result.history))
+                                    for h in nxt.history]
+        result = RefineResult(nxt.rig, rig, history, result.loss_before, nxt.loss_after,
+                              pose_change(rig, nxt.rig), result.frames, nxt.inv_distance)
+    say(f"photometric loss {result.loss_before:.5f} -> {result.loss_after:.5f}")
+    return result
+
+
+def _refine_round(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray],
+                  config: RefineConfig, labels: Optional[Sequence[str]],
+                  initial_inv: Optional[np.ndarray], progress: bool,
+                  round_index: int) -> RefineResult:
+    """One round of :func:`refine_rig`: checks, the starting distances, the coarse-to-fine
+    Adam schedule from ``rig``'s calibration."""
     from tqdm import tqdm
 
-    say = log or (lambda _line: None)
+    of_rounds = f", round {round_index + 1} of {config.rounds}" if config.rounds > 1 else ""
     images = np.asarray(images)
     if images.ndim != 5 or images.shape[1] != rig.num_cameras or images.shape[-1] != 3:
         raise ValueError(f"images must have shape (frames, Ncam={rig.num_cameras}, h, w, 3); "
@@ -453,7 +486,7 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
 
     if initial_inv is None:
         inv0 = []
-        for f in tqdm(range(len(images)), desc="refine: initial distances (RTSS)",
+        for f in tqdm(range(len(images)), desc=f"refine: initial distances (RTSS){of_rounds}",
                       unit="frame", disable=not progress):
             inv0.append(initial_inverse_distance(work, images[f], masks[f], pano))
         initial_inv = np.stack(inv0)
@@ -478,7 +511,7 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
     per_level = [config.steps // len(config.blur)] * len(config.blur)
     per_level[-1] += config.steps - sum(per_level)
     done = 0
-    with tqdm(total=config.steps, desc="refine calibration", unit="step",
+    with tqdm(total=config.steps, desc=f"refine calibration{of_rounds}", unit="step",
               disable=not progress) as bar:
         for level, (sigma, count) in enumerate(zip(config.blur, per_level)):
             level_images = fine_images if sigma == finest else _prepared(images, masks, sigma)
@@ -491,14 +524,14 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
                 loss, data = float(loss), float(data)
                 if not math.isfinite(loss):
                     raise FloatingPointError(f"refinement loss is {loss} at step {done}")
-                history.append({"step": done, "level": level, "loss": loss, "data": data})
+                history.append({"step": done, "round": round_index, "level": level,
+                                "loss": loss, "data": data})
                 bar.set_postfix(loss=f"{loss:.4f}", blur=f"{sigma:g}")
                 bar.update(1)
                 done += 1
     loss_after = _data_term(work, params, fine_images, jmasks, pano)
     refined = apply_calibration(work, jax.device_get(params))
     out_rig = _concrete_rig(rig, refined, config.intrinsics)
-    say(f"photometric loss {loss_before:.5f} -> {loss_after:.5f}")
     return RefineResult(out_rig, rig, history, loss_before, loss_after, pose_change(rig, out_rig),
                         measures, np.exp(np.asarray(params["log_inv"], np.float64)))
 

@@ -100,6 +100,8 @@ def _refine(args) -> int:
             check_output_file(getattr(args, option), f"--{option}")
     if args.scale is not None and not 0 < args.scale <= 1:
         raise ValueError(f"--scale must be in (0, 1]; found {args.scale}")
+    if args.rounds < 1:
+        raise ValueError(f"--rounds must be at least 1; found {args.rounds}")
     rig = import_rig(args.rig)
     images, masks, labels = read_frames(args.frames, rig, args.max_frames)
     cam = rig.cameras[0]
@@ -109,10 +111,12 @@ def _refine(args) -> int:
     work = fitted[0][0]
     work_images = np.stack([f[1] for f in fitted])
     work_masks = np.stack([f[2] for f in fitted])
+    rounds = f" in each of {args.rounds} rounds" if args.rounds > 1 else ""
     print(f"refining {rig.num_cameras} cameras from {len(labels)} frame(s) at "
-          f"{size[0]}x{size[1]} px ({args.steps} steps{', intrinsics too' if args.intrinsics else ''})")
+          f"{size[0]}x{size[1]} px ({args.steps} steps{rounds}"
+          f"{', intrinsics too' if args.intrinsics else ''})")
     print(f"gauge: {GAUGE}")
-    config = RefineConfig(steps=args.steps, intrinsics=args.intrinsics,
+    config = RefineConfig(steps=args.steps, intrinsics=args.intrinsics, rounds=args.rounds,
                           **({} if args.smoothness is None else {"smoothness": args.smoothness}))
     start = None
     if args.start_distance is not None:
@@ -138,6 +142,7 @@ def _refine(args) -> int:
         print(f"wrote {plot_loss_curve(result.history, args.plot, f'refining {args.rig}')}")
     if args.json:
         doc = {"rig": str(args.rig), "out": str(out), "frames": labels, "steps": args.steps,
+               "rounds": args.rounds,
                "scale": scale, "intrinsics": bool(args.intrinsics), "gauge": GAUGE,
                "loss_before": result.loss_before, "loss_after": result.loss_after,
                "cameras": [{"name": n, "rotation_deg": moved["rotation_deg"][i],
@@ -226,6 +231,11 @@ def register(subparsers) -> None:
                           "and principal point")
     ref.add_argument("--steps", type=int, default=300,
                      help="Adam steps, split over three blur levels (coarse to fine)")
+    ref.add_argument("--rounds", type=int, default=1,
+                     help="run the whole schedule this many times, each round after the first "
+                          "restarting from the classical baseline's distances matched at the "
+                          "calibration the previous round reached (the first round's were "
+                          "matched at the given, wrong one; costs a round's time each)")
     ref.add_argument("--scale", type=float, default=None,
                      help="working image scale: images and lenses are resized by this factor "
                           "before refining (the refined poses hold at any size); default: the "
