@@ -176,6 +176,12 @@ def test_a_second_round_is_a_fresh_run_from_the_baselines_distances_at_the_refin
     expected = ref.pose_change(start, second.rig)
     np.testing.assert_allclose(both.moved["rotation_deg"], expected["rotation_deg"])
     np.testing.assert_allclose(both.moved["translation_mm"], expected["translation_mm"])
+    # How far the second round moved each camera from the first round's calibration.
+    assert first.round_moves == [] and len(both.round_moves) == 1
+    between = ref.pose_change(first.rig, second.rig)
+    np.testing.assert_allclose(both.round_moves[0]["rotation_deg"], between["rotation_deg"])
+    np.testing.assert_allclose(both.round_moves[0]["translation_mm"], between["translation_mm"])
+    assert max(between["rotation_deg"]) > 0.0
     with pytest.raises(ValueError, match=r"RefineConfig\.rounds must be an integer >= 1; "
                                          r"found 0"):
         config.replace(rounds=0)
@@ -291,12 +297,17 @@ def _write_frames(tmp_path, rig, images):
     return folders
 
 
-def test_command_writes_the_refined_rig_and_its_report(tmp_path, capsys, quick_compiles_here):
+def test_command_writes_the_refined_rig_and_its_report(tmp_path, capsys, quick_compiles_here,
+                                                       monkeypatch):
+    """Two rounds: the second starts from the classical baseline's distances (a stand-in
+    here, so that no matcher compiles); the report says how far it moved the cameras."""
     import json
 
     from gijax.cli import main
     from gijax.io.rigfile import load_rig, save_rig
 
+    monkeypatch.setattr(ref, "initial_inverse_distance",
+                        lambda rig, image, mask, pano: np.full(pano.shape, 0.5))
     truth = triangle_rig()
     images, _ = frames(truth)
     start = turn(truth, 2, (1.0, 0.0, 0.0), 1.0)
@@ -304,8 +315,8 @@ def test_command_writes_the_refined_rig_and_its_report(tmp_path, capsys, quick_c
     folders = _write_frames(tmp_path, truth, images)
     out, report, png = tmp_path / "refined.yaml", tmp_path / "report.json", tmp_path / "loss.png"
     rc = main(["rig", "refine", str(tmp_path / "start.yaml"), "--frames", *folders, "--out",
-               str(out), "--steps", "6", "--scale", "1", "--start-distance", "2",
-               "--plot", str(png), "--json", str(report), "--no-progress"])
+               str(out), "--steps", "6", "--rounds", "2", "--scale", "1", "--start-distance",
+               "2", "--plot", str(png), "--json", str(report), "--no-progress"])
     text = capsys.readouterr().out
     assert rc == 0, text
     refined = load_rig(out)
@@ -315,9 +326,14 @@ def test_command_writes_the_refined_rig_and_its_report(tmp_path, capsys, quick_c
     assert [c["name"] for c in doc["cameras"]] == ["cam0", "cam1", "cam2"]
     assert doc["cameras"][0]["rotation_deg"] == 0.0
     assert doc["cameras"][2]["rotation_deg"] > 0.0
-    assert len(doc["history"]) == 6
+    assert len(doc["history"]) == 12 and doc["rounds"] == 2
+    assert [h["round"] for h in doc["history"]] == [0] * 6 + [1] * 6
+    assert len(doc["round_moves"]) == 1 and len(doc["round_moves"][0]["translation_mm"]) == 3
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "cam2:" in text and "photometric loss:" in text and "gauge: camera 0" in text
+    assert "(6 steps in each of 2 rounds)" in text
+    moved = max(doc["round_moves"][0]["translation_mm"])
+    assert "round 2 moved the cameras by at most" in text and f"and {moved:.2f} mm" in text
 
 
 def test_command_names_a_missing_camera_image(tmp_path, capsys):

@@ -6,7 +6,9 @@ from pathlib import Path
 
 
 def plot_loss_curve(history: list, path, title: str = "calibration refinement") -> str:
-    """Objective and photometric data term per step, the blur levels shaded; returns the path."""
+    """Objective and photometric data term per step, each next blur level marked by a dashed
+    line and each next round (history entries with ``round``) by a solid one; returns the
+    path."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -18,11 +20,14 @@ def plot_loss_curve(history: list, path, title: str = "calibration refinement") 
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     ax.plot(steps, [h["loss"] for h in history], lw=0.9, label="objective")
     ax.plot(steps, [h["data"] for h in history], lw=0.9, label="photometric data term")
-    levels = sorted({h["level"] for h in history})
-    for lv in levels[1:]:
-        first = min(h["step"] for h in history if h["level"] == lv)
-        ax.axvline(first, color="0.6", lw=0.6, ls="--")
-    ax.set_xlabel("step (dashed: next, finer blur level)")
+    for prev, h in zip(history, history[1:]):
+        if h.get("round", 0) != prev.get("round", 0):
+            ax.axvline(h["step"], color="0.3", lw=0.9)
+        elif h["level"] != prev["level"]:
+            ax.axvline(h["step"], color="0.6", lw=0.6, ls="--")
+    rounds = len({h.get("round", 0) for h in history})
+    ax.set_xlabel("step (dashed: next, finer blur level"
+                  + ("; solid: next round)" if rounds > 1 else ")"))
     ax.set_ylabel("loss")
     ax.set_title(title)
     ax.legend()

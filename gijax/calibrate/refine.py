@@ -309,7 +309,10 @@ class RefineResult:
     initial calibration with the RTSS distances vs refined calibration with refined distances,
     after the last round), ``moved`` (:func:`pose_change`), ``frames`` (per frame ``texture``
     per camera and ``overlap`` of the first round, see :func:`frame_texture`,
-    :func:`frame_overlap`) and ``inv_distance`` (F, H, W) refined."""
+    :func:`frame_overlap`), ``inv_distance`` (F, H, W) refined, and ``round_moves``: for each
+    round after the first, :func:`pose_change` from the previous round's calibration (moves
+    that still shrink say another round may help; moves near zero, that the rounds have
+    settled)."""
 
     rig: Rig
     initial: Rig
@@ -319,6 +322,7 @@ class RefineResult:
     moved: dict
     frames: list
     inv_distance: np.ndarray
+    round_moves: list = dataclasses.field(default_factory=list)
 
 
 def frame_texture(images: np.ndarray, masks: np.ndarray) -> list:
@@ -439,8 +443,12 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
         nxt = _refine_round(result.rig, images, masks, config, labels, None, progress, k)
         history = result.history + [dict(h, step=h["step"] + len(result.history))
                                     for h in nxt.history]
+        step_move = pose_change(result.rig, nxt.rig)
+        say(f"round {k + 1} moved the cameras by at most {max(step_move['rotation_deg']):.4f} "
+            f"deg and {max(step_move['translation_mm']):.2f} mm from round {k}'s calibration")
         result = RefineResult(nxt.rig, rig, history, result.loss_before, nxt.loss_after,
-                              pose_change(rig, nxt.rig), result.frames, nxt.inv_distance)
+                              pose_change(rig, nxt.rig), result.frames, nxt.inv_distance,
+                              result.round_moves + [step_move])
     say(f"photometric loss {result.loss_before:.5f} -> {result.loss_after:.5f}")
     return result
 

@@ -133,6 +133,9 @@ def _refine(args) -> int:
     for i, name in enumerate(rig.names):
         print(f"  {name}: {moved['rotation_deg'][i]:.4f} deg, {moved['translation_mm'][i]:.2f} mm")
     print(f"photometric loss: {result.loss_before:.5f} before, {result.loss_after:.5f} after")
+    for k, step_move in enumerate(result.round_moves, start=2):
+        print(f"round {k} moved the cameras by at most {max(step_move['rotation_deg']):.4f} deg "
+              f"and {max(step_move['translation_mm']):.2f} mm from round {k - 1}'s calibration")
     for line in implausible_moves(rig, moved):
         print(f"warning: {line}")
     print(f"wrote {out}")
@@ -143,6 +146,9 @@ def _refine(args) -> int:
     if args.json:
         doc = {"rig": str(args.rig), "out": str(out), "frames": labels, "steps": args.steps,
                "rounds": args.rounds,
+               "round_moves": [{"rotation_deg": m["rotation_deg"],
+                                "translation_mm": m["translation_mm"]}
+                               for m in result.round_moves],
                "scale": scale, "intrinsics": bool(args.intrinsics), "gauge": GAUGE,
                "loss_before": result.loss_before, "loss_after": result.loss_after,
                "cameras": [{"name": n, "rotation_deg": moved["rotation_deg"][i],
