@@ -50,8 +50,8 @@ SCALES = {
     # steps per round, rounds, seeds, label and RTSS panorama (H, W), refinement panorama
     # (H, W), the edge-aware smoothness weight, and the image scale RTSS's MAE is scored at
     # (the poses carry over)
-    "smoke": dict(image_scale=0.125, frames=2, steps=30, rounds=2, seeds=(0,), pano_hw=(16, 64),
-                  refine_hw=(16, 64), smoothness=0.02, mae_scale=0.125),
+    "smoke": dict(image_scale=0.125, frames=2, steps=30, rounds=2, seeds=(0,),
+                  pano_hw=(16, 64), refine_hw=(16, 64), smoothness=0.02, mae_scale=0.125),
     # 512 px: at 256 px the objective's own minimum sits 0.3 deg / 8 mm from the truth (a
     # refinement started at the true poses drifts there), at 512 px within 0.1 deg. RTSS is
     # scored at 256 px, where RS-E32 is at its best on these rigs (its 7-pixel window and 32
@@ -60,8 +60,8 @@ SCALES = {
     # and on far scenes a translation error hides in them (one round left 10-27 mm); matched
     # again at the refined poses they let the translations go (a fourth and fifth round moved
     # no camera by more than 0.4 mm more).
-    "cpu": dict(image_scale=0.5, frames=3, steps=400, rounds=3, seeds=(0, 1), pano_hw=(40, 160),
-                refine_hw=(48, 192), smoothness=0.002, mae_scale=0.25),
+    "cpu": dict(image_scale=0.5, frames=3, steps=400, rounds=3, seeds=(0, 1),
+                pano_hw=(40, 160), refine_hw=(48, 192), smoothness=0.002, mae_scale=0.25),
 }
 TARGET_DEG, TARGET_MM, TARGET_MAE = 0.1, 3.0, 0.05
 SECTION = "calibration-refinement"
@@ -229,7 +229,8 @@ def main(argv=None) -> int:
           f"{meta['git_revision'][:12]}, {meta['machine']['platform']}, "
           f"{meta['machine']['cpu_count']} CPUs; {meta['seconds']:.0f} s in all. Images at "
           f"{cfg['image_scale']} of 1024 px, {cfg['frames']} frames per rig, {cfg['steps']} "
-          f"Adam steps in each of {cfg['rounds']} rounds, refinement panorama {cfg['refine_hw'][0]}x{cfg['refine_hw'][1]}, "
+          f"Adam steps in each of {cfg['rounds']} rounds, refinement panorama "
+          f"{cfg['refine_hw'][0]}x{cfg['refine_hw'][1]}, "
           f"smoothness {cfg['smoothness']}; errors modulo the gauge (camera 0 fixed, camera 0-1 "
           f"distance held); RS-E32's MAE (1/m) on the same scenes at {cfg['mae_scale']} of "
           f"1024 px with each calibration's poses.", "",
