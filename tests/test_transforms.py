@@ -164,6 +164,7 @@ NOT_TRACED = {
     "gijax.calibrate.refine.pose_change": "NumPy report of concrete poses",
     "gijax.calibrate.refine.refine_scale": "Python float of a concrete image width",
     "gijax.calibrate.refine.implausible_moves": "text lines from a concrete report",
+    "gijax.calibrate.refine.round_move_line": "a text line from a concrete report",
     "gijax.calibrate.refine.gauge_aligned_errors": "NumPy report of concrete poses",
     "gijax.calibrate.refine.blur_radius": "Python int of a static sigma",
     "gijax.calibrate.refine.refine_panorama": "a static panorama from concrete poses",

@@ -444,8 +444,7 @@ def refine_rig(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray] = None,
         history = result.history + [dict(h, step=h["step"] + len(result.history))
                                     for h in nxt.history]
         step_move = pose_change(result.rig, nxt.rig)
-        say(f"round {k + 1} moved the cameras by at most {max(step_move['rotation_deg']):.4f} "
-            f"deg and {max(step_move['translation_mm']):.2f} mm from round {k}'s calibration")
+        say(round_move_line(k + 1, step_move))
         result = RefineResult(nxt.rig, rig, history, result.loss_before, nxt.loss_after,
                               pose_change(rig, nxt.rig), result.frames, nxt.inv_distance,
                               result.round_moves + [step_move])
@@ -655,6 +654,14 @@ def implausible_moves(rig: Rig, moved: dict, spacing_share: float = 0.5,
                          f"constrain it; check it before use (more frames, more texture, a "
                          f"larger --scale)")
     return lines
+
+
+def round_move_line(round_number: int, move: dict) -> str:
+    """One line of text: how far round ``round_number`` (counted from 1) moved the cameras
+    from the previous round's calibration (``move``: a :func:`pose_change` report)."""
+    return (f"round {round_number} moved the cameras by at most "
+            f"{max(move['rotation_deg']):.4f} deg and {max(move['translation_mm']):.2f} mm from "
+            f"round {round_number - 1}'s calibration")
 
 
 def pose_change(before: Rig, after: Rig) -> dict:

@@ -88,7 +88,7 @@ def _refine(args) -> int:
     from gijax.calibrate.frames import read_frames
     from gijax.calibrate.refine import (GAUGE, RefineConfig, refine_panorama, refine_rig,
                                         transfer_refinement)
-    from gijax.calibrate.refine import implausible_moves, refine_scale
+    from gijax.calibrate.refine import implausible_moves, refine_scale, round_move_line
     from gijax.data.images import fit_images
     from gijax.io.masks import import_rig
     from gijax.io.paths import check_output_file, write_text_atomic
@@ -134,8 +134,7 @@ def _refine(args) -> int:
         print(f"  {name}: {moved['rotation_deg'][i]:.4f} deg, {moved['translation_mm'][i]:.2f} mm")
     print(f"photometric loss: {result.loss_before:.5f} before, {result.loss_after:.5f} after")
     for k, step_move in enumerate(result.round_moves, start=2):
-        print(f"round {k} moved the cameras by at most {max(step_move['rotation_deg']):.4f} deg "
-              f"and {max(step_move['translation_mm']):.2f} mm from round {k - 1}'s calibration")
+        print(round_move_line(k, step_move))
     for line in implausible_moves(rig, moved):
         print(f"warning: {line}")
     print(f"wrote {out}")
