@@ -83,6 +83,10 @@ def child_env(cache_dir, optimised=False):
     env["JAX_COMPILATION_CACHE_DIR"] = str(cache_dir)
     env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
     env["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "0"
+    # Children that run at the same time (the two processes of a distributed run) compile the
+    # same programs into the same folder, and JAX writes an entry in place: a size limit turns
+    # on JAX's file lock around every read and write, so none reads a half-written entry.
+    env["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(8 << 30)
     env["JAX_PLATFORMS"] = "cpu"
     # Training children check orchestration (checkpoints, kills, resumes, sharding) against
     # other children, so they compile without XLA's optimisation passes, 2-3x faster; the

@@ -76,7 +76,14 @@ def results(tmp_path_factory):
     procs = [subprocess.Popen([sys.executable, str(script), f"dist{i}", str(d), addr], env=env2,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for i in range(2)]
-    outs = [p.communicate(timeout=300) for p in procs]
+    try:
+        outs = [p.communicate(timeout=300) for p in procs]
+    except subprocess.TimeoutExpired:
+        # Say where each process stood rather than only that the first one timed out.
+        for p in procs:
+            p.kill()
+        errs = [p.communicate()[1][-1500:] for p in procs]
+        pytest.fail("the two processes did not finish in 300 s:\n" + "\n---\n".join(errs))
     for p, (_, err) in zip(procs, outs):
         assert p.returncode == 0, err[-3000:]
     return {k: dict(np.load(d / f"{k}.npz")) for k in ("one", "four", "dist")}
