@@ -395,9 +395,27 @@ def check_targets(rows: list, model: str) -> list:
 
 # --------------------------------------------------------------------------- figures, bundle
 
-def learning_curve(run: Path, path: Path, title: str) -> None:
+def _numbers(target: dict) -> str:
+    return ", ".join(f"{k} {v:.4f}" for k, v in target["numbers"].items())
+
+
+def log_targets(targets: list) -> None:
+    """One progress line per target of :func:`check_targets`."""
+    for t in targets:
+        log(f"  {t['status']}: {t['test']}: {t['target']} ({_numbers(t)})")
+
+
+def targets_markdown(targets: list) -> str:
+    """The targets of :func:`check_targets` as a Markdown list."""
+    return "\n".join(f"- **{t['status']}** `{t['test']}`: {t['target']} ({_numbers(t)})"
+                     for t in targets)
+
+
+def learning_curve(run: Path, path: Path, title: str, average=None) -> None:
     """Training loss (per step, and its running mean over 200 steps) and validation MAE; a
-    dotted line where a piece of a split training resumed."""
+    dotted line where a piece of a split training resumed. ``average`` (first step, last
+    step, validation MAE) shades the steps whose checkpoints a weight average took and marks
+    the average's validation MAE at the last of them."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -417,7 +435,14 @@ def learning_curve(run: Path, path: Path, title: str) -> None:
     a.set_xlabel("step")
     a.set_ylabel("training loss")
     if vals:
-        b.plot([v["step"] for v in vals], [v["mae"] for v in vals], "o-", color="tab:red")
+        b.plot([v["step"] for v in vals], [v["mae"] for v in vals], "o-", color="tab:red",
+               label="checkpoints")
+    if average is not None:
+        first, last, mae = average
+        b.axvspan(first, last, color="tab:green", alpha=0.12, lw=0)
+        b.plot([last], [mae], "*", ms=13, color="tab:green",
+               label=f"mean of the checkpoints {first}-{last}")
+        b.legend(fontsize=8, loc="upper right")
     for piece in run_pieces(recs)[1:]:
         for ax in (a, b):
             ax.axvline(piece["from_step"], color="0.6", lw=0.8, ls=":")
@@ -446,11 +471,14 @@ def run_pieces(records: list) -> list:
     return pieces
 
 
-def write_figures(out: Path, work: Path, scale: Scale, preds: dict, run: Path) -> dict:
+def write_figures(out: Path, work: Path, scale: Scale, preds: dict, run: Path,
+                  average=None) -> dict:
+    """The learning curve (``average`` as :func:`learning_curve` takes it) and one figure of
+    the first held-out sample per test rig."""
     from gijax.data import DatasetReader
 
     figures = {"curve": out.with_name(f"{out.name}_learning_curve.png")}
-    learning_curve(run, figures["curve"], f"{run.name} ({scale.name} scale)")
+    learning_curve(run, figures["curve"], f"{run.name} ({scale.name} scale)", average)
     for test in TESTS:
         path = out.with_name(f"{out.name}_{test}.png")
         sample = DatasetReader(work / "data" / test)[0]
@@ -600,9 +628,7 @@ def main(argv=None) -> int:
     rows, preds = evaluate(work, scale, models)
     durations["evaluation"] = time.perf_counter() - t0
     targets = check_targets(rows, "new bundle")
-    for t in targets:
-        log(f"  {t['status']}: {t['test']}: {t['target']} "
-            f"({', '.join(f'{k} {v:.4f}' for k, v in t['numbers'].items())})")
+    log_targets(targets)
     figures = write_figures(out, work, scale, preds, run)
     prov = provenance_record(f"{NAME}.py", argv, scale, args.seed, work, started, durations,
                              data)
@@ -610,9 +636,7 @@ def main(argv=None) -> int:
                       "until": args.until}
     doc = {"table": NAME, "rows": rows, "targets": targets, "training": trained,
            "figures": {k: v.name for k, v in figures.items()}, "provenance": prov}
-    target_lines = "\n".join(
-        f"- **{t['status']}** `{t['test']}`: {t['target']} ("
-        + ", ".join(f"{k} {v:.4f}" for k, v in t["numbers"].items()) + ")" for t in targets)
+    target_lines = targets_markdown(targets)
     md = "\n\n".join([
         f"{plan.design if plan.kind == 'long' else MODEL} trained on the mixture "
         f"({len(mixture_roles(recipe))} datasets of "

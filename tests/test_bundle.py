@@ -213,3 +213,70 @@ def test_a_bundle_with_its_figures_is_replaced_whole_and_a_users_file_is_never_t
     with pytest.raises(ValueError, match="bundle figures must be named"):
         save_bundle(model, config_file, tmp_path / "b2", figures={"weights.npz": png})
     assert not (tmp_path / "b2").exists()
+
+
+def _pack_of(model, folder, config_file, step):
+    """A resume pack of ``model`` as the trainer writes one (state pytree of params, rest,
+    Adam's moments and the step; the run's network configuration and list in its meta)."""
+    import optax
+
+    from gijax.store.packs import read_pack, write_pack
+    from gijax.train.step import split_model
+
+    _, _, params, rest = split_model(model)
+    state = {"params": params, "rest": rest, "opt": optax.adam(1e-3).init(params),
+             "step": jnp.asarray(step, jnp.int32)}
+    doc = json.loads(config_file.read_text())
+    write_pack(folder, state, {"step": step, "model_config": doc["model"],
+                               "candidates": doc["candidates"]}, [])
+    return read_pack(folder)
+
+
+def test_a_bundle_averaged_from_packs_holds_the_mean_of_their_variables(tmp_path):
+    from gijax.store.bundles import flatten_variables
+    from gijax.store.packs import model_variables
+    from gijax.train.bundle import average_variables, save_averaged_bundle
+
+    cfg, config_file = _run_config(tmp_path)
+    models = [create_model(cfg.model_config(), seed=s) for s in (3, 4)]
+    # BatchNorm statistics that differ between the two, as two trainings' would.
+    for m, v in zip(models, (0.5, 2.0)):
+        nnx.update(m, jax_tree_scale(nnx.state(m, nnx.BatchStat), v))
+    packs = [_pack_of(m, tmp_path / f"pack{i}", config_file, 100 * (i + 1))
+             for i, m in enumerate(models)]
+    # The pack's variables are the model's, keyed as a bundle keys them.
+    want = [flatten_variables(nnx.to_pure_dict(nnx.state(m))) for m in models]
+    got = model_variables(packs[0])
+    assert set(got) == set(want[0]) and len(got) > 20
+    for k in got:
+        np.testing.assert_array_equal(got[k], want[0][k])
+    out = save_averaged_bundle(packs, config_file, tmp_path / "bundle", {"command": "test"})
+    loaded, mc, cand = load_model(out)
+    assert mc == cfg.model_config()
+    np.testing.assert_allclose(np.asarray(cand), np.linspace(0.5, 100.0, 16), rtol=1e-6)
+    mean = flatten_variables(nnx.to_pure_dict(nnx.state(loaded)))
+    moved = 0
+    for k, a in want[0].items():
+        b = want[1][k]
+        if a.dtype.kind == "f":
+            np.testing.assert_allclose(mean[k], (a.astype(np.float64) + b) / 2, rtol=1e-6,
+                                       atol=1e-7, err_msg=k)
+            moved += int(not np.array_equal(a, b))
+    assert moved > 20
+    # Another network's pack, or sets of other variables, are refused in one line.
+    (tmp_path / "other").mkdir()
+    other_cfg, other_config = _run_config(tmp_path / "other", unet_base=8)
+    other = _pack_of(create_model(other_cfg.model_config()), tmp_path / "pack-other",
+                     other_config, 300)
+    with pytest.raises(ValueError, match="pack-other.*network configuration"):
+        save_averaged_bundle([packs[0], other], config_file, tmp_path / "bundle2")
+    with pytest.raises(ValueError, match=r"^b: variable unet/\S+ is float32 \(8,\); a has "
+                                         r"float32 \(4,\)$"):
+        average_variables([want[0], model_variables(other)], ["a", "b"])
+    fewer = dict(want[1])
+    fewer.pop(sorted(fewer)[0])
+    with pytest.raises(ValueError, match=f"^b: holds other network variables than a .*"
+                                         f"{sorted(want[0])[0]}"):
+        average_variables([want[0], fewer], ["a", "b"])
+    with pytest.raises(ValueError, match="at least one"):
+        average_variables([])

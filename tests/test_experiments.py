@@ -678,3 +678,20 @@ def test_demo_seeds_command_parses_and_rows_pick_the_best_list_and_count_wins():
     assert test3["method"] == "M training" and test3["scenes_won"] == 2 and test3["ahead"] is True
     assert train["seed"] == 7 and train["scenes"] == 3
     assert abs(test3["baseline_mae"] - np.mean([0.08, 0.09, 0.095])) < 1e-12
+
+
+def test_weight_average_refuses_to_replace_the_bundle_it_compares_and_names_a_missing_pack(
+        tmp_path, capsys):
+    """The averaging script checks its arguments before any work: publishing over the bundle
+    it is compared with is refused in one line; a revision without the pack is named."""
+    from experiments import weight_average as wa
+
+    bundle = tmp_path / "bundle"
+    with pytest.raises(SystemExit) as exc:
+        wa.main(["--scale", "cpu", "--work", str(tmp_path), "--previous", str(bundle),
+                 "--publish", str(bundle), "--results", "none"])
+    assert exc.value.code == 2
+    assert "would replace the --previous bundle" in capsys.readouterr().err
+    assert not (tmp_path / "data").exists()
+    with pytest.raises(ValueError, match=r"^revision 0{40}: no experiments/packs/x/pack.json"):
+        wa.extract_pack("0" * 40, "experiments/packs/x", tmp_path / "pack")

@@ -27,6 +27,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import re
 from pathlib import Path
 from typing import Any, Optional
 
@@ -135,6 +136,35 @@ def read_pack(folder: str | os.PathLike) -> Optional[Pack]:
     metrics_path = folder / METRICS_FILE
     lines = metrics_path.read_text().splitlines(keepends=True) if metrics_path.is_file() else []
     return Pack(folder, meta, arrays, lines)
+
+
+# One step of a ``jax.tree_util.keystr`` path: a dict key, a list index, or an attribute.
+_KEY_STEP = re.compile(r"\['([^']*)'\]|\[(\d+)\]|\.(\w+)")
+
+
+def model_variables(pack: Pack) -> dict[str, np.ndarray]:
+    """The network's variables in ``pack`` (its parameters and its other variables: BatchNorm
+    statistics, RNG stream states), keyed as a bundle's ``weights.npz`` keys them
+    (``'features/stem/conv/kernel'``; see :func:`gijax.store.bundles.flatten_variables`).
+    The optimiser's moments and the step are left out. ValueError (one line naming the state
+    file) when the pack holds no network variables or a key of another form."""
+    where = pack.folder / str(pack.meta.get("state_file", "?"))
+    out = {}
+    for key, arr in pack.arrays.items():
+        steps = [m.groups() for m in _KEY_STEP.finditer(key)]
+        if "".join(m.group(0) for m in _KEY_STEP.finditer(key)) != key:
+            raise ValueError(f"{where}: array key {key!r} is not a pytree path")
+        if not steps or steps[0][0] not in ("params", "rest"):
+            continue
+        # An nnx variable's array is its '.value'; every other step names a module or list.
+        if steps[-1][2] == "value":
+            steps = steps[:-1]
+        if any(attr is not None for _, _, attr in steps):
+            raise ValueError(f"{where}: array key {key!r} is not a network variable's path")
+        out["/".join(name if name is not None else index for name, index, _ in steps[1:])] = arr
+    if not out:
+        raise ValueError(f"{where}: holds no network variables ('params' or 'rest')")
+    return out
 
 
 def restore_state(pack: Pack, abstract_state: Any) -> Any:
