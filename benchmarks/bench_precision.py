@@ -15,8 +15,9 @@ coordinate in float16 is resolved to 0.5 px (0.25 px below 512) and the plan's f
 are meant to matter. There are no trained paper-size weights here: the network has random
 weights, or a state dict of the authors' released network (``--release-weights``, mapped by
 :mod:`gijax.nn.release_weights`); the MAE of an untrained network says nothing, so the table
-gives the differences from the fp32 file only (int8 left out unless ``--int8``: its
-calibration at paper size is slow). onnxruntime keeps float16 tensors in float16 between
+gives the differences from the fp32 file only (int8 left out unless ``--int8``: at paper size
+its calibration records every island convolution's tensors: G16VV with 2 scenes and 2
+calibration scenes took 2.5 minutes and a 9 GB peak on 2 cores). onnxruntime keeps float16 tensors in float16 between
 nodes on the CPU (its fp16 kernels may compute in float32 inside), so the rounding of the
 sampling coordinates and of every stored intermediate is what the figures show.
 
