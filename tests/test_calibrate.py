@@ -219,6 +219,13 @@ def test_gauge_of_apply_calibration():
         err = ref.gauge_aligned_errors(moved, rig)
         np.testing.assert_allclose(err["rotation_deg"], 0.0, atol=1e-5)
         np.testing.assert_allclose(err["translation_mm"], 0.0, atol=1e-9)
+        # ... because aligning the gauge undoes the motion and the scale exactly.
+        aligned, scale = ref.align_gauge(moved, rig)
+        assert scale == pytest.approx(1 / 1.3, rel=1e-12)
+        np.testing.assert_allclose(np.asarray(aligned.rotations), np.asarray(rig.rotations),
+                                   atol=1e-12)
+        np.testing.assert_allclose(np.asarray(aligned.translations),
+                                   np.asarray(rig.translations), atol=1e-12)
 
 
 def test_pose_gradient_matches_central_differences(quick_compiles_here):
@@ -402,9 +409,9 @@ def test_experiment_report_draws_each_perturbed_camera_and_tables_every_camera(t
     rows = [{"rig": rig, "seed": 0, "cameras": cams, "start_rotation_deg": [0.0] + [1.0] * k,
              "final_rotation_deg": [0.0] + [0.05] * k, "start_translation_mm": [0.0] + [20.0] * k,
              "final_translation_mm": [0.0] + [2.5] * k, "mae_true": 0.1, "mae_perturbed": 0.15,
-             "mae_refined": 0.1025,
+             "mae_refined": 0.1025, "mae_aligned": 0.101,
              "held_out": {"true": {"mae": 0.08}, "perturbed": {"mae": 0.12},
-                          "refined": {"mae": 0.082}},
+                          "refined": {"mae": 0.09}, "aligned": {"mae": 0.082}},
              "held_out_paired": {"mean": 0.002, "ci95": [-0.001, 0.004], "lower": 3,
                                  "scenes": 16}}
             for rig, cams, k in (("a", ["c0", "c1", "c2"], 2), ("b", ["c0", "c1"], 1))]
@@ -416,7 +423,8 @@ def test_experiment_report_draws_each_perturbed_camera_and_tables_every_camera(t
     lines = table(rows).splitlines()
     assert len(lines) == 2 + 5
     assert "| a | 0 | c1 | 1.000 -> 0.050 | 20.0 -> 2.5 |" in lines[3]
-    assert "| 0.1000 / 0.1500 / 0.1025 | 0.0800 / 0.1200 / 0.0820 | +2.5 %; per scene +0.0020 1/m " \
+    assert "| 0.1000 / 0.1500 / 0.1025 / 0.1010 | 0.0800 / 0.1200 / 0.0900 / 0.0820 | +2.5 %; " \
+        "per scene +0.0020 1/m " \
         "(95 % CI -0.0010..+0.0040), lower on 3/16 |" in lines[2], lines[2]
 
 

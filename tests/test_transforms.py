@@ -166,6 +166,7 @@ NOT_TRACED = {
     "gijax.calibrate.refine.implausible_moves": "text lines from a concrete report",
     "gijax.calibrate.refine.round_move_line": "a text line from a concrete report",
     "gijax.calibrate.refine.gauge_aligned_errors": "NumPy report of concrete poses",
+    "gijax.calibrate.refine.align_gauge": "NumPy report of concrete poses",
     "gijax.calibrate.refine.blur_radius": "Python int of a static sigma",
     "gijax.calibrate.refine.refine_panorama": "a static panorama from concrete poses",
     "gijax.calibrate.frames.read_frame_folder": "reads files",

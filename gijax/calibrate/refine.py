@@ -43,8 +43,8 @@ are measured modulo that gauge (:func:`gauge_aligned_errors`).
 Pure and traceable: :func:`apply_calibration`, :func:`prepare_images`,
 :func:`frame_terms`, :func:`refinement_loss`. The loop at the edge (:func:`refine_rig`: RTSS
 initialisation, checks on concrete frames, progress bar) and the reports
-(:func:`pose_change`, :func:`gauge_aligned_errors`, :func:`frame_texture`,
-:func:`frame_overlap`, :func:`transfer_refinement`) are not traced.
+(:func:`pose_change`, :func:`align_gauge`, :func:`gauge_aligned_errors`,
+:func:`frame_texture`, :func:`frame_overlap`, :func:`transfer_refinement`) are not traced.
 """
 
 from __future__ import annotations
@@ -673,17 +673,15 @@ def pose_change(before: Rig, after: Rig) -> dict:
             "translation_mm": (np.linalg.norm(tb - ta, axis=-1) * 1e3).tolist()}
 
 
-def gauge_aligned_errors(rig: Rig, truth: Rig) -> dict:
-    """Pose errors of ``rig`` against ``truth`` modulo the refinement's gauge (NumPy report).
-
-    ``rig`` is first brought into ``truth``'s gauge: the rigid motion that puts its camera 0
-    on ``truth``'s camera 0 and the scale about camera 0 that makes its camera 0-1 distance
-    ``truth``'s. Returns per camera ``rotation_deg`` and ``translation_mm`` as
-    :func:`pose_change`, and the ``scale`` applied.
-    """
-    ra, rt = (np.asarray(r.rotations, np.float64) for r in (rig, truth))
-    ta, tt = (np.asarray(r.translations, np.float64) for r in (rig, truth))
-    # The rigid motion g with g(camera 0 of rig) = camera 0 of truth.
+def align_gauge(rig: Rig, reference: Rig) -> tuple[Rig, float]:
+    """``rig`` brought into ``reference``'s gauge (NumPy, concrete poses): the rigid motion
+    that puts its camera 0 on ``reference``'s camera 0, then the scale about camera 0 that makes
+    its camera 0-1 distance ``reference``'s. Returns (that rig, the scale applied; 1 for one
+    camera). What images cannot tell apart is removed: a rig refined from images, aligned to
+    the true one, differs from it only by what the images got wrong."""
+    ra, rt = (np.asarray(r.rotations, np.float64) for r in (rig, reference))
+    ta, tt = (np.asarray(r.translations, np.float64) for r in (rig, reference))
+    # The rigid motion g with g(camera 0 of rig) = camera 0 of reference.
     g = rt[0] @ ra[0].T
     rot = np.einsum("ij,njk->nik", g, ra)
     trans = (ta - ta[0]) @ g.T
@@ -691,6 +689,20 @@ def gauge_aligned_errors(rig: Rig, truth: Rig) -> dict:
     if len(ta) > 1:
         scale = float(np.linalg.norm(tt[1] - tt[0]) / max(np.linalg.norm(trans[1]), 1e-12))
     trans = tt[0] + scale * trans
+    return rig.replace(rotations=jnp.asarray(rot, rig.rotations.dtype),
+                       translations=jnp.asarray(trans, rig.translations.dtype)), scale
+
+
+def gauge_aligned_errors(rig: Rig, truth: Rig) -> dict:
+    """Pose errors of ``rig`` against ``truth`` modulo the refinement's gauge (NumPy report):
+    ``rig`` is first brought into ``truth``'s gauge (:func:`align_gauge`). Returns per camera
+    ``rotation_deg`` and ``translation_mm`` as :func:`pose_change`, and the ``scale`` applied.
+    """
+    aligned, scale = align_gauge(rig, truth)
+    rot = np.asarray(aligned.rotations, np.float64)
+    trans = np.asarray(aligned.translations, np.float64)
+    rt = np.asarray(truth.rotations, np.float64)
+    tt = np.asarray(truth.translations, np.float64)
     return {"rotation_deg": _rotation_angles_deg(rot, rt).tolist(),
             "translation_mm": (np.linalg.norm(trans - tt, axis=-1) * 1e3).tolist(),
             "scale": scale}
