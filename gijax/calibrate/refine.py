@@ -673,12 +673,9 @@ def pose_change(before: Rig, after: Rig) -> dict:
             "translation_mm": (np.linalg.norm(tb - ta, axis=-1) * 1e3).tolist()}
 
 
-def align_gauge(rig: Rig, reference: Rig) -> tuple[Rig, float]:
-    """``rig`` brought into ``reference``'s gauge (NumPy, concrete poses): the rigid motion
-    that puts its camera 0 on ``reference``'s camera 0, then the scale about camera 0 that makes
-    its camera 0-1 distance ``reference``'s. Returns (that rig, the scale applied; 1 for one
-    camera). What images cannot tell apart is removed: a rig refined from images, aligned to
-    the true one, differs from it only by what the images got wrong."""
+def _gauge_aligned_poses(rig: Rig, reference: Rig) -> tuple[np.ndarray, np.ndarray, float]:
+    """``rig``'s rotations and translations in ``reference``'s gauge, float64, and the scale
+    (see :func:`align_gauge`)."""
     ra, rt = (np.asarray(r.rotations, np.float64) for r in (rig, reference))
     ta, tt = (np.asarray(r.translations, np.float64) for r in (rig, reference))
     # The rigid motion g with g(camera 0 of rig) = camera 0 of reference.
@@ -688,19 +685,26 @@ def align_gauge(rig: Rig, reference: Rig) -> tuple[Rig, float]:
     scale = 1.0
     if len(ta) > 1:
         scale = float(np.linalg.norm(tt[1] - tt[0]) / max(np.linalg.norm(trans[1]), 1e-12))
-    trans = tt[0] + scale * trans
+    return rot, tt[0] + scale * trans, scale
+
+
+def align_gauge(rig: Rig, reference: Rig) -> tuple[Rig, float]:
+    """``rig`` brought into ``reference``'s gauge (NumPy, concrete poses): the rigid motion
+    that puts its camera 0 on ``reference``'s camera 0, then the scale about camera 0 that makes
+    its camera 0-1 distance ``reference``'s. Returns (that rig, the scale applied; 1 for one
+    camera). What images cannot tell apart is removed: a rig refined from images, aligned to
+    the true one, differs from it only by what the images got wrong."""
+    rot, trans, scale = _gauge_aligned_poses(rig, reference)
     return rig.replace(rotations=jnp.asarray(rot, rig.rotations.dtype),
                        translations=jnp.asarray(trans, rig.translations.dtype)), scale
 
 
 def gauge_aligned_errors(rig: Rig, truth: Rig) -> dict:
     """Pose errors of ``rig`` against ``truth`` modulo the refinement's gauge (NumPy report):
-    ``rig`` is first brought into ``truth``'s gauge (:func:`align_gauge`). Returns per camera
-    ``rotation_deg`` and ``translation_mm`` as :func:`pose_change`, and the ``scale`` applied.
-    """
-    aligned, scale = align_gauge(rig, truth)
-    rot = np.asarray(aligned.rotations, np.float64)
-    trans = np.asarray(aligned.translations, np.float64)
+    ``rig`` is first brought into ``truth``'s gauge (:func:`align_gauge`, in float64). Returns
+    per camera ``rotation_deg`` and ``translation_mm`` as :func:`pose_change`, and the
+    ``scale`` applied."""
+    rot, trans, scale = _gauge_aligned_poses(rig, truth)
     rt = np.asarray(truth.rotations, np.float64)
     tt = np.asarray(truth.translations, np.float64)
     return {"rotation_deg": _rotation_angles_deg(rot, rt).tolist(),
