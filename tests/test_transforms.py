@@ -48,7 +48,7 @@ from gijax.geometry import panorama_frame
 from gijax.geometry.panorama import Panorama
 from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
 from gijax.sweep import consistency, grid, grids, matching, sample, surrogate
-from gijax.calibrate import refine as calib_refine
+from gijax.calibrate import constraint as calib_constraint, refine as calib_refine
 from gijax.nn import cost_volume, layers, refine, regressor, spherical, upsample
 from gijax.evaluate import labels, metrics
 from gijax.train import losses
@@ -172,6 +172,11 @@ NOT_TRACED = {
     "gijax.calibrate.frames.read_frame_folder": "reads files",
     "gijax.calibrate.frames.read_frames": "reads files",
     "gijax.calibrate.plots.plot_loss_curve": "writes a PNG",
+    "gijax.calibrate.constraint.neighbour_colouring": "NumPy constant of a static size",
+    "gijax.calibrate.constraint.gauge_basis": "NumPy basis of concrete poses",
+    "gijax.calibrate.constraint.pose_constraint": "NumPy report of concrete frames (an edge)",
+    "gijax.calibrate.constraint.constraint_report": "NumPy report of concrete curvatures",
+    "gijax.calibrate.constraint.weak_constraint_lines": "text lines from a concrete report",
     "gijax.evaluate.metrics.summarize": "Python numbers from accumulated values",
     "gijax.evaluate.metrics.evaluate_batch": "Python numbers",
     "gijax.evaluate.loop.evaluate_predictions": "evaluation loop over batches (Python numbers)",
@@ -1092,6 +1097,18 @@ def _calib_frame_terms(seed):
 def _calib_loss(seed):
     ims, ms = _calib_frame(seed)
     return _calib_params(seed), small_rig(seed), ims[None], ms[None]
+
+
+def _pose_only(params):
+    return {k: params[k] for k in ("rotation", "translation", "log_inv")}
+
+
+# The pose curvature is second order in the loss: its gradient (third order) is not a use.
+@case(calib_constraint.pose_information,
+      call=lambda p, r, im, m: calib_constraint.pose_information(p, r, im, m, CALIB_PANO))
+def _calib_information(seed):
+    ims, ms = _calib_frame(seed)
+    return _pose_only(_calib_params(seed)), small_rig(seed), ims[None], ms[None]
 
 
 # ------------------------------------------------------------------------------ baseline

@@ -41,7 +41,7 @@ translation moves on the sphere of that radius around camera 0:
 are measured modulo that gauge (:func:`gauge_aligned_errors`).
 
 Pure and traceable: :func:`apply_calibration`, :func:`prepare_images`,
-:func:`frame_terms`, :func:`refinement_loss`. The loop at the edge (:func:`refine_rig`: RTSS
+:func:`frame_samples`, :func:`frame_terms`, :func:`refinement_loss`. The loop at the edge (:func:`refine_rig`: RTSS
 initialisation, checks on concrete frames, progress bar) and the reports
 (:func:`pose_change`, :func:`align_gauge`, :func:`gauge_aligned_errors`,
 :func:`frame_texture`, :func:`frame_overlap`, :func:`transfer_refinement`) are not traced.
@@ -217,6 +217,30 @@ def blur_radius(sigma: float) -> int:
 # ------------------------------------------------------------------------------ loss
 
 
+def frame_samples(rig: Rig, images: Array, masks: Array, log_inv: Array,
+                  pano: Panorama) -> tuple[Array, Array]:
+    """Every camera's view of one frame's panorama points ``reference + ray / inv``.
+
+    Args as :func:`frame_terms`. Returns ``(colours, weights)``: (N, H, W, 3) each camera's
+    bilinear sample of its prepared image, and (N, H, W) its sampled mask times whether the
+    point projects inside its image (0 = not seen)."""
+    dtype = images.dtype
+    rays = panorama_rays(rig, pano, dtype)                                   # (H, W, 3)
+    lo, hi = math.log(1.0 / MAX_DISTANCE), math.log(1.0 / MIN_DISTANCE)
+    dist = jnp.exp(-jnp.clip(log_inv.astype(dtype), lo, hi))
+    pts = rig.reference.astype(dtype) + dist[..., None] * rays               # (H, W, 3)
+    cams = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *rig.cameras)
+    packed = jnp.concatenate([images, masks[..., None].astype(dtype)], -1)
+
+    def one_camera(cam, rot, trans, img):
+        pc = (pts - trans.astype(dtype)) @ rot.astype(dtype)
+        px, ok = cam_lib.project(cam, pc)
+        vals, inside = bilinear_sample(img, px, ok)
+        return vals[..., :3], vals[..., 3] * inside.astype(dtype)
+
+    return jax.vmap(one_camera)(cams, rig.rotations, rig.translations, packed)
+
+
 def frame_terms(rig: Rig, images: Array, masks: Array, log_inv: Array,
                 pano: Panorama, edge_scale: float = 0.05,
                 guide: Optional[Array] = None) -> dict:
@@ -238,20 +262,7 @@ def frame_terms(rig: Rig, images: Array, masks: Array, log_inv: Array,
     ``colour`` (H, W, 3, the cameras' weighted mean).
     """
     dtype = images.dtype
-    rays = panorama_rays(rig, pano, dtype)                                   # (H, W, 3)
-    lo, hi = math.log(1.0 / MAX_DISTANCE), math.log(1.0 / MIN_DISTANCE)
-    dist = jnp.exp(-jnp.clip(log_inv.astype(dtype), lo, hi))
-    pts = rig.reference.astype(dtype) + dist[..., None] * rays               # (H, W, 3)
-    cams = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *rig.cameras)
-    packed = jnp.concatenate([images, masks[..., None].astype(dtype)], -1)
-
-    def one_camera(cam, rot, trans, img):
-        pc = (pts - trans.astype(dtype)) @ rot.astype(dtype)
-        px, ok = cam_lib.project(cam, pc)
-        vals, inside = bilinear_sample(img, px, ok)
-        return vals[..., :3], vals[..., 3] * inside.astype(dtype)
-
-    cols, wts = jax.vmap(one_camera)(cams, rig.rotations, rig.translations, packed)
+    cols, wts = frame_samples(rig, images, masks, log_inv, pano)
     dispersion, total = view_dispersion(cols, wts)
     seen = (total >= SEEN_WEIGHT).astype(dtype)
     count = jnp.maximum(jnp.sum(seen), 1.0)
