@@ -266,6 +266,118 @@ def test_pose_gradient_matches_central_differences(quick_compiles_here):
         assert float(jnp.max(jnp.abs(grad[0]))) > 1e-3     # the loss does depend on the pose
 
 
+def test_pose_information_is_the_schur_complement_of_the_dense_gauss_newton_matrix(
+        quick_compiles_here):
+    """The matrix-free curvature against a dense assembly (float64): the Jacobian of every
+    colour sample in poses and distances at once (``jax.jacfwd``), each point's ``J^T C J``
+    with ``C`` the Hessian of its dispersion, weighted as the data term weighs the point,
+    plus ``jax.hessian`` of the smoothness in the distances. ``pose`` is the pose block, and
+    ``marginal`` the Schur complement with the distances' diagonal; without smoothness the
+    distance block is diagonal (no point couples to another), so there it is exact."""
+    from gijax.calibrate import constraint as con
+    from gijax.sweep.consistency import view_dispersion
+
+    with jax.enable_x64(True):
+        truth = triangle_rig()
+        images, masks = frames(truth)
+        images, masks = images.astype(np.float64), masks.astype(np.float64)
+        pano = Panorama.hemisphere(3, 5)      # odd width: the colouring's wrapped column
+        prepared = jnp.stack([ref.prepare_images(jnp.asarray(im), jnp.asarray(m), 1.0, 3)
+                              for im, m in zip(images, masks)])
+        jm = jnp.asarray(masks)
+        rng = np.random.default_rng(3)
+        params = ref.initial_parameters(truth, np.log(np.stack(
+            [np.full(pano.shape, 1.0 / r) for r in RADII])) + 0.05 * rng.normal(
+            size=(len(RADII), *pano.shape)))
+        params["rotation"] = jnp.asarray(rng.normal(size=(2, 3)) * 0.003)
+        params["translation"] = jnp.asarray(rng.normal(size=(2, 3)) * 0.003)
+        guides = jnp.asarray(rng.uniform(0.2, 0.8, (len(RADII), *pano.shape, 3)))
+        n_pose, shape = 12, params["log_inv"].shape
+
+        def split(v):
+            return dict(params, rotation=v[:6].reshape(2, 3), translation=v[6:12].reshape(2, 3),
+                        log_inv=v[12:].reshape(shape))
+
+        def samples(v):
+            p = split(v)
+            rig = ref.apply_calibration(truth, p)
+            return jax.vmap(lambda im, m, li: ref.frame_samples(rig, im, m, li, pano))(
+                prepared, jm, p["log_inv"])
+
+        def smooth(v, weight):
+            return weight * ref.refinement_loss(split(v), truth, prepared, jm, pano, 1.0, 0.05,
+                                                guides)[1]["smooth"]
+
+        flat = jnp.concatenate([params[k].reshape(-1)
+                                for k in ("rotation", "translation", "log_inv")])
+        cols, wts = (np.asarray(x) for x in samples(flat))       # (F, N, H, W, 3), (F, N, H, W)
+        jac = np.asarray(jax.jacfwd(lambda v: samples(v)[0])(flat))  # (F, N, H, W, 3, D)
+        point_c = jax.jit(jax.hessian(
+            lambda c, w: view_dispersion(c[:, None, :], w[:, None])[0][0]))
+        seen = wts.sum(1) >= ref.SEEN_WEIGHT
+        gn = np.zeros((flat.size, flat.size))
+        for f, h, w in zip(*np.nonzero(seen)):
+            c = np.asarray(point_c(cols[f, :, h, w], wts[f, :, h, w])).reshape(9, 9)
+            j = jac[f, :, h, w].reshape(9, -1)
+            gn += j.T @ c @ j / (len(RADII) * seen[f].sum())
+        smooth_hessian = jax.jit(jax.hessian(smooth))
+        info_fn = jax.jit(lambda p, s: con.pose_information(p, truth, prepared, jm, pano, s,
+                                                            0.05, guides))
+        for weight in (0.02, 0.0):
+            dense = gn + np.asarray(smooth_hessian(flat, weight))
+            info = jax.device_get(info_fn(params, jnp.float64(weight)))
+            h_pp, h_pd = dense[:n_pose, :n_pose], dense[:n_pose, n_pose:]
+            diag = np.diag(dense[n_pose:, n_pose:])
+            keep = diag > 0
+            schur = h_pp - (h_pd[:, keep] / diag[keep]) @ h_pd[:, keep].T
+            scale = np.abs(h_pp).max()
+            np.testing.assert_allclose(info["pose"], h_pp, rtol=1e-7, atol=1e-9 * scale)
+            np.testing.assert_allclose(info["distance"].reshape(-1), diag, rtol=1e-7,
+                                       atol=1e-9 * np.abs(diag).max())
+            np.testing.assert_allclose(info["marginal"], schur, rtol=1e-7, atol=1e-9 * scale)
+            off = dense[n_pose:, n_pose:] - np.diag(diag)
+            if weight == 0.0:
+                assert np.abs(off).max() <= 1e-12 * np.abs(diag).max()
+            else:
+                assert np.abs(off).max() > 1e-3 * np.abs(diag).max()   # the coupling is there
+            # Gauss-Newton: positive semi-definite, and the re-fitted distances take
+            # curvature away from the poses, never add any.
+            assert np.linalg.eigvalsh(info["marginal"]).min() > -1e-9 * scale
+            assert np.linalg.eigvalsh(h_pp - info["marginal"]).min() > -1e-9 * scale
+
+
+def test_far_frames_constrain_translation_loosely_and_the_report_says_so():
+    """The same textures on spheres 25x farther: a camera shift moves their images 25x less,
+    so the predicted translation deviation grows several-fold while the rotation's does not,
+    and only the far frames draw the one-line warning."""
+    from gijax.calibrate import constraint as con
+
+    truth = triangle_rig()
+    config = ref.RefineConfig(steps=6, blur=(1.5, 0.7), pano_hw=PANO_HW, min_texture=0.01)
+    reports = {}
+    for name, scale in (("near", 1.0), ("far", 25.0)):
+        radii = tuple(scale * r for r in RADII)
+        ims, ms = zip(*(sphere_images(truth, r, f) for f, r in enumerate(radii)))
+        inv = np.stack([np.full(PANO_HW, 1.0 / r) for r in radii])
+        reports[name] = con.pose_constraint(truth, np.stack(ims), np.stack(ms), inv, config)
+    near, far = (reports[k]["cameras"] for k in ("near", "far"))
+    assert near[0]["sigma_translation_mm"] == 0.0          # camera 0 is the gauge
+    for k in (1, 2):
+        assert far[k]["sigma_translation_mm"] > 3.0 * near[k]["sigma_translation_mm"]
+        assert far[k]["sigma_rotation_deg"] < 1.5 * near[k]["sigma_rotation_deg"]
+        assert abs(np.linalg.norm(far[k]["weak_direction"]) - 1.0) < 1e-9
+        assert 0.0 <= far[k]["absorbed"] <= 1.0
+    # Bounds between the two: twice the near frames' largest deviation (the cameras are 0.4 m
+    # apart), and a rotation bound neither reaches.
+    share = 2.0 * max(c["sigma_translation_mm"] for c in near) / 400.0
+    assert con.weak_constraint_lines(reports["near"], truth, share, 10.0) == []
+    lines = con.weak_constraint_lines(reports["far"], truth, share, 10.0)
+    assert len(lines) == 2 and lines[0].startswith("cam1: the frames constrain its pose loosely")
+    assert "of its 400 mm to the nearest camera" in lines[0]
+    text = con.constraint_lines(reports["far"])
+    assert len(text) == 2 and text[1].startswith(f"  cam2: {far[2]['sigma_rotation_deg']:.3f} deg")
+
+
 def test_black_image_is_refused_with_one_line():
     truth = triangle_rig()
     images, masks = frames(truth)
@@ -341,6 +453,12 @@ def test_command_writes_the_refined_rig_and_its_report(tmp_path, capsys, quick_c
     assert "(6 steps in each of 2 rounds)" in text
     moved = max(doc["round_moves"][0]["translation_mm"])
     assert "round 2 moved the cameras by at most" in text and f"and {moved:.2f} mm" in text
+    # The constraint report: camera 0 is the gauge, the others' deviations printed as stored.
+    cons = doc["constraint"]["cameras"]
+    assert cons[0]["sigma_translation_mm"] == 0.0 and len(cons) == 3
+    assert f"  cam2: {cons[2]['sigma_rotation_deg']:.3f} deg, " \
+        f"{cons[2]['sigma_translation_mm']:.2f} mm along" in text
+    assert "how well the frames fix each pose" in text
 
 
 def test_command_names_a_missing_camera_image(tmp_path, capsys):
@@ -413,7 +531,12 @@ def test_experiment_report_draws_each_perturbed_camera_and_tables_every_camera(t
              "held_out": {"true": {"mae": 0.08}, "perturbed": {"mae": 0.12},
                           "refined": {"mae": 0.09}, "aligned": {"mae": 0.082}},
              "held_out_paired": {"mean": 0.002, "ci95": [-0.001, 0.004], "lower": 3,
-                                 "scenes": 16}}
+                                 "scenes": 16},
+             "constraint": {"cameras": [{}] + [{"sigma_rotation_deg": 0.012,
+                                                "sigma_translation_mm": 0.75,
+                                                "absorbed": 0.5}] * k},
+             "from_truth_rotation_deg": [0.0] + [0.02] * k,
+             "from_truth_translation_mm": [0.0] + [1.25] * k}
             for rig, cams, k in (("a", ["c0", "c1", "c2"], 2), ("b", ["c0", "c1"], 1))]
     plot(rows, tmp_path / "errors.png")
     with open(tmp_path / "errors.png", "rb") as f:
@@ -422,7 +545,9 @@ def test_experiment_report_draws_each_perturbed_camera_and_tables_every_camera(t
     assert (int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")) == (1210, 484)
     lines = table(rows).splitlines()
     assert len(lines) == 2 + 5
-    assert "| a | 0 | c1 | 1.000 -> 0.050 | 20.0 -> 2.5 |" in lines[3]
+    assert "| a | 0 | c1 | 1.000 -> 0.050 | 20.0 -> 2.5 | 0.012 / 0.75 (50 %) | 0.020 / 1.2 |" \
+        in lines[3], lines[3]
+    assert "| a | 0 | c0 | 0.000 -> 0.000 | 0.0 -> 0.0 | (gauge) | 0.000 / 0.0 |" in lines[2]
     assert "| 0.1000 / 0.1500 / 0.1025 / 0.1010 | 0.0800 / 0.1200 / 0.0900 / 0.0820 | +2.5 %; " \
         "per scene +0.0020 1/m " \
         "(95 % CI -0.0010..+0.0040), lower on 3/16 |" in lines[2], lines[2]

@@ -177,6 +177,7 @@ NOT_TRACED = {
     "gijax.calibrate.constraint.pose_constraint": "NumPy report of concrete frames (an edge)",
     "gijax.calibrate.constraint.constraint_report": "NumPy report of concrete curvatures",
     "gijax.calibrate.constraint.weak_constraint_lines": "text lines from a concrete report",
+    "gijax.calibrate.constraint.constraint_lines": "text lines from a concrete report",
     "gijax.evaluate.metrics.summarize": "Python numbers from accumulated values",
     "gijax.evaluate.metrics.evaluate_batch": "Python numbers",
     "gijax.evaluate.loop.evaluate_predictions": "evaluation loop over batches (Python numbers)",
@@ -1089,6 +1090,12 @@ def _calib_prepare(seed):
 @case(calib_refine.frame_terms, call=lambda r, im, m, li: calib_refine.frame_terms(
     r, im, m, li, CALIB_PANO), diff=(0, 1, 3))
 def _calib_frame_terms(seed):
+    return (small_rig(seed), *_calib_frame(seed), _calib_params(seed)["log_inv"][0])
+
+
+@case(calib_refine.frame_samples, call=lambda r, im, m, li: calib_refine.frame_samples(
+    r, im, m, li, CALIB_PANO), diff=(0, 1, 3))
+def _calib_frame_samples(seed):
     return (small_rig(seed), *_calib_frame(seed), _calib_params(seed)["log_inv"][0])
 
 

@@ -261,23 +261,51 @@ def constraint_report(rig: Rig, info: dict) -> dict:
     return {"cameras": cameras, "data": float(info["data"]), "points": points}
 
 
-def weak_constraint_lines(report: dict, max_translation_mm: float,
-                          max_rotation_deg: float) -> list:
-    """One line per camera whose predicted deviation (:func:`pose_constraint`) exceeds either
-    bound: the frames leave that pose loosely determined."""
+# Defaults of :func:`weak_constraint_lines`: a predicted translation deviation above 1 % of a
+# camera's distance to its nearest neighbour (3 mm on the paper's 0.31 m training rig) or a
+# rotation deviation above 0.1 degree.
+LOOSE_SPACING_SHARE = 0.01
+LOOSE_ROTATION_DEG = 0.1
+
+
+def weak_constraint_lines(report: dict, rig: Rig, spacing_share: float = LOOSE_SPACING_SHARE,
+                          max_rotation_deg: float = LOOSE_ROTATION_DEG) -> list:
+    """One line per camera whose predicted deviation (:func:`pose_constraint`) exceeds
+    ``spacing_share`` of its distance to the nearest other camera (translation) or
+    ``max_rotation_deg``: the frames leave that pose loosely determined. The deviations are
+    lower bounds (see the module docstring), so a camera named here is not a close call."""
+    trans = np.asarray(rig.translations, np.float64)
     lines = []
-    for cam in report["cameras"][1:]:
+    for k, cam in enumerate(report["cameras"]):
+        if k == 0:
+            continue
+        near_mm = 1e3 * float(np.min(np.linalg.norm(np.delete(trans, k, 0) - trans[k], axis=-1)))
         mm, deg = cam["sigma_translation_mm"], cam["sigma_rotation_deg"]
         d = ", ".join(f"{x:+.2f}" for x in cam["weak_direction"])
         if mm is None:
             lines.append(f"{cam['name']}: the photometric objective does not rise along a "
                          f"direction that moves it (translation ({d}) in the rig frame): the "
-                         f"refinement did not settle there, or the frames do not see it; "
-                         f"more steps or rounds, or other frames")
-        elif mm > max_translation_mm or deg > max_rotation_deg:
+                         f"frames do not see it, or the refinement did not settle; other "
+                         f"frames, more steps or rounds")
+        elif mm > spacing_share * near_mm or deg > max_rotation_deg:
             lines.append(
                 f"{cam['name']}: the frames constrain its pose loosely (predicted deviation "
-                f"{deg:.3f} deg, {mm:.2f} mm along ({d}) in the rig frame, where the re-fitted "
-                f"distances absorb {100 * cam['absorbed']:.0f}% of the photometric change); "
-                f"frames with structure nearer the rig, or more frames, constrain it better")
+                f"{deg:.3f} deg, {mm:.2f} mm along ({d}) in the rig frame, {mm / near_mm:.1%} of "
+                f"its {near_mm:.0f} mm to the nearest camera; the re-fitted distances absorb "
+                f"{cam['absorbed']:.0%} of the photometric change there); frames with "
+                f"structure nearer the rig, or more frames, constrain it better")
+    return lines
+
+
+def constraint_lines(report: dict) -> list:
+    """The report as text, one line per camera after the gauge's."""
+    lines = []
+    for cam in report["cameras"][1:]:
+        if cam["sigma_translation_mm"] is None:
+            lines.append(f"  {cam['name']}: not at a minimum along a direction that moves it")
+            continue
+        d = ", ".join(f"{x:+.2f}" for x in cam["weak_direction"])
+        lines.append(f"  {cam['name']}: {cam['sigma_rotation_deg']:.3f} deg, "
+                     f"{cam['sigma_translation_mm']:.2f} mm along ({d}) (the distances absorb "
+                     f"{cam['absorbed']:.0%} there)")
     return lines

@@ -85,6 +85,8 @@ def _refine(args) -> int:
 
     import numpy as np
 
+    from gijax.calibrate.constraint import (constraint_lines, pose_constraint,
+                                            weak_constraint_lines)
     from gijax.calibrate.frames import read_frames
     from gijax.calibrate.refine import (GAUGE, RefineConfig, refine_panorama, refine_rig,
                                         transfer_refinement)
@@ -135,7 +137,13 @@ def _refine(args) -> int:
     print(f"photometric loss: {result.loss_before:.5f} before, {result.loss_after:.5f} after")
     for k, step_move in enumerate(result.round_moves, start=2):
         print(round_move_line(k, step_move))
-    for line in implausible_moves(rig, moved):
+    constraint = pose_constraint(result.rig, work_images, work_masks, result.inv_distance,
+                                 config)
+    print("how well the frames fix each pose (predicted deviation at the refined calibration, "
+          "a lower bound; camera 0 is the gauge):")
+    for line in constraint_lines(constraint):
+        print(line)
+    for line in implausible_moves(rig, moved) + weak_constraint_lines(constraint, work):
         print(f"warning: {line}")
     print(f"wrote {out}")
     if args.plot:
@@ -153,7 +161,7 @@ def _refine(args) -> int:
                "cameras": [{"name": n, "rotation_deg": moved["rotation_deg"][i],
                             "translation_mm": moved["translation_mm"][i]}
                            for i, n in enumerate(rig.names)],
-               "history": result.history}
+               "constraint": constraint, "history": result.history}
         print(f"wrote {write_text_atomic(args.json, json.dumps(doc, indent=2))}")
     return 0
 
@@ -222,8 +230,11 @@ def register(subparsers) -> None:
                     "how large it is). A frame is a folder of one image per camera named "
                     "after the rig's cameras (cam0.png, cam1.png, ...; an optional "
                     "<name>_mask.png beside each), or a gijax dataset folder (one frame per "
-                    "sample). Prints how far each camera moved and the photometric loss "
-                    "before and after.",
+                    "sample). Prints how far each camera moved, the photometric loss "
+                    "before and after, and how well the frames fix each pose: the predicted "
+                    "deviation of its rotation and of its translation along the least "
+                    "constrained direction, from the objective's curvature with the distance "
+                    "maps re-fitted (a warning names a camera the frames leave loose).",
         formatter_class=HelpFormatter)
     ref.add_argument("rig", metavar="NAME|FILE", help="the rig to refine: " + rig_help())
     ref.add_argument("--frames", nargs="+", required=True, metavar="DIR",
@@ -259,6 +270,7 @@ def register(subparsers) -> None:
                      help="use at most this many frames (the first ones)")
     ref.add_argument("--plot", metavar="LOSS.png", help="write the loss curve as a PNG")
     ref.add_argument("--json", metavar="REPORT.json",
-                     help="write the report (per camera moves, losses, loss history) as JSON")
+                     help="write the report (per camera moves, losses, predicted deviations, "
+                          "loss history) as JSON")
     ref.add_argument("--no-progress", action="store_true", help="no progress bar")
     ref.set_defaults(func=_refine)
