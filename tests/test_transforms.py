@@ -1081,7 +1081,8 @@ def _calib_apply(seed):
     return small_rig(seed), _calib_params(seed)
 
 
-@case(calib_refine.prepare_images, call=lambda im, m: calib_refine.prepare_images(im, m, 0.8, 2),
+@case(calib_refine.prepare_images,
+      call=lambda im, m: calib_refine.prepare_images(im, m, 0.8, 2, 1.2, 2),
       diff=(0,))
 def _calib_prepare(seed):
     return _calib_frame(seed)

@@ -209,7 +209,7 @@ def pose_constraint(rig: Rig, images: np.ndarray, masks: np.ndarray,
         raise ValueError(f"inverse distances must have shape {(len(images), *pano.shape)}; "
                          f"found {inv.shape}")
     params = initial_parameters(work, jnp.asarray(np.log(inv), jnp.float32))
-    fine = _prepared(images, masks, config.blur[-1])
+    fine = _prepared(images, masks, config.blur[-1], config.flatten)
     jmasks = jnp.asarray(masks)
     guides = jnp.stack([_frame_terms_jit(work, fine[f], jmasks[f], params["log_inv"][f],
                                          pano)["colour"] for f in range(len(images))])

@@ -13,7 +13,8 @@ Method (photometric bundle adjustment on panorama distance maps):
   (:func:`gijax.sweep.consistency.view_dispersion`, the same measure as the photometric
   candidate adaptation), averaged over points that at least two cameras' worth of mask see.
   The images are gain-normalised per camera and channel (so exposure differences are not
-  disagreement) and blurred within their masks.
+  disagreement), flattened (each pixel divided by its neighbourhood's mean, so vignetting is
+  not disagreement either) and blurred within their masks.
 * Smoothness: an edge-aware total variation of the log inverse distance (weights fall where
   the panorama's colour changes), which keeps the distance maps from absorbing pose errors
   in textureless regions.
@@ -101,6 +102,11 @@ class RefineConfig:
         intensities in [0, 1]) a camera's image must have in every frame.
       min_overlap: the least fraction of a frame's panorama that two cameras must see at the
         initial distances.
+      flatten: width of the neighbourhood each pixel's brightness is divided by (a Gaussian's
+        sigma as a fraction of the image width; 0: none, only one gain per camera and
+        channel), see :func:`prepare_images`. Rendered fisheyes darkened up to 35 % towards
+        the rim, differently per camera: a refinement started at the true poses drifted 6 mm
+        without it and under 1 mm with 0.05.
       rounds: how many times the whole schedule runs. Every round after the first starts
         again from the classical baseline's distances, now matched at the calibration the
         previous round reached, with a fresh optimiser: the first round's starting distances
@@ -122,6 +128,7 @@ class RefineConfig:
     edge_scale: float = 0.05
     min_texture: float = 0.02
     min_overlap: float = 0.05
+    flatten: float = 0.05
     rounds: int = 1
 
     def __post_init__(self):
@@ -136,6 +143,9 @@ class RefineConfig:
                 raise bad_field("RefineConfig", name, "> 0", getattr(self, name))
         if not self.smoothness >= 0:
             raise bad_field("RefineConfig", "smoothness", ">= 0", self.smoothness)
+        if not 0 <= self.flatten < 0.5:
+            raise bad_field("RefineConfig", "flatten", "in [0, 0.5) of the image width",
+                            self.flatten)
         if int(self.rounds) != self.rounds or self.rounds < 1:
             raise bad_field("RefineConfig", "rounds", "an integer >= 1", self.rounds)
 
@@ -190,19 +200,30 @@ def apply_calibration(rig: Rig, params: dict) -> Rig:
 # ------------------------------------------------------------------------------ images
 
 
-def prepare_images(images: Array, masks: Array, sigma, radius: int) -> Array:
-    """Gain-normalised, blurred images of one frame: (N, h, w, 3) in [0, 1] and masks (N, h, w)
-    -> (N, h, w, 3).
+def prepare_images(images: Array, masks: Array, sigma, radius: int, flatten_sigma=0.0,
+                   flatten_radius: int = 0) -> Array:
+    """Gain-normalised, flattened, blurred images of one frame: (N, h, w, 3) in [0, 1] and
+    masks (N, h, w) -> (N, h, w, 3).
 
     Every camera and channel is scaled so that its mean over the valid pixels equals the
-    frame's mean over all cameras (exposure and white balance are not disagreement); the blur
-    (``sigma`` pixels, ``radius`` taps static) is normalised by the blurred mask, so the rig's
-    body and the black outside the lens do not bleed into the valid pixels.
+    frame's mean over all cameras (exposure and white balance are not disagreement). With
+    ``flatten_radius`` > 0 every pixel is then divided by its neighbourhood's mean (a masked
+    Gaussian of ``flatten_sigma`` pixels) and scaled back to that frame mean: a smooth
+    multiplicative field, above all a lens's vignetting (up to a third darker at the rim, and
+    different per camera), is not disagreement either; left in, it pulls the poses towards
+    where the cameras' fall-offs agree. The blur (``sigma`` pixels, ``radius`` taps static) is
+    normalised by the blurred mask, so the rig's body and the black outside the lens do not
+    bleed into the valid pixels.
     """
     m = masks.astype(images.dtype)[..., None]
     means = jnp.sum(images * m, (1, 2)) / jnp.maximum(jnp.sum(m, (1, 2)), 1.0)       # (N, 3)
     target = jnp.mean(means, 0)
     gained = images * (target / jnp.maximum(means, 1e-3))[:, None, None, :]
+    if flatten_radius > 0:
+        wide = jax.vmap(lambda x: gaussian_blur(x, flatten_sigma, flatten_radius))
+        local = wide(gained * m) / jnp.maximum(wide(m), 1e-3)
+        # The floor keeps dark corners from being amplified into noise.
+        gained = gained / jnp.maximum(local, 0.05 * target) * target
     blur = jax.vmap(lambda x: gaussian_blur(x, sigma, radius))
     num = blur(gained * m)
     den = blur(m)
@@ -514,7 +535,7 @@ def _refine_round(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray],
                          f"{(len(images), *pano.shape)}; found {initial_inv.shape}")
     log_inv0 = np.log(np.clip(initial_inv, 1.0 / MAX_DISTANCE, 1.0 / MIN_DISTANCE))
     finest = config.blur[-1]
-    fine_images = _prepared(images, masks, finest)
+    fine_images = _prepared(images, masks, finest, config.flatten)
     overlap = [frame_overlap(work, images[f], masks[f], log_inv0[f], pano)
                for f in range(len(images))]
     check_overlap(overlap, labels, config)
@@ -532,7 +553,8 @@ def _refine_round(rig: Rig, images: np.ndarray, masks: Optional[np.ndarray],
     with tqdm(total=config.steps, desc=f"refine calibration{of_rounds}", unit="step",
               disable=not progress) as bar:
         for level, (sigma, count) in enumerate(zip(config.blur, per_level)):
-            level_images = fine_images if sigma == finest else _prepared(images, masks, sigma)
+            level_images = (fine_images if sigma == finest
+                            else _prepared(images, masks, sigma, config.flatten))
             guides = _guides(work, params, level_images, jmasks, pano)
             for _ in range(count):
                 frac = done / max(config.steps - 1, 1)
@@ -561,15 +583,16 @@ def refine_panorama(rig: Rig, config: RefineConfig = RefineConfig()) -> Panorama
     return panorama_of(choose_panorama(rig).coverage, config.pano_hw)
 
 
-def _prepared(images: np.ndarray, masks: np.ndarray, sigma: float) -> Array:
-    fn = _prepare_jit(blur_radius(sigma))
-    return jnp.stack([fn(jnp.asarray(im), jnp.asarray(m), jnp.float32(sigma))
-                      for im, m in zip(images, masks)])
+def _prepared(images: np.ndarray, masks: np.ndarray, sigma: float, flatten: float) -> Array:
+    flatten_sigma = flatten * images.shape[-2]
+    fn = _prepare_jit(blur_radius(sigma), blur_radius(flatten_sigma) if flatten > 0 else 0)
+    return jnp.stack([fn(jnp.asarray(im), jnp.asarray(m), jnp.float32(sigma),
+                         jnp.float32(flatten_sigma)) for im, m in zip(images, masks)])
 
 
 @functools.lru_cache(maxsize=None)
-def _prepare_jit(radius: int):
-    return jax.jit(lambda im, m, s: prepare_images(im, m, s, radius))
+def _prepare_jit(radius: int, flatten_radius: int):
+    return jax.jit(lambda im, m, s, fs: prepare_images(im, m, s, radius, fs, flatten_radius))
 
 
 def _guides(rig: Rig, params: dict, images: Array, masks: Array, pano: Panorama) -> Array:
