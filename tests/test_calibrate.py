@@ -527,6 +527,10 @@ def test_command_smoothness_option_reaches_the_refinement_and_refuses_a_negative
     assert main(argv + ["--rounds", "0"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["gijax rig: error: --rounds must be at least 1; found 0"], err
+    assert main(argv + ["--flatten", "0.5"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["gijax rig: error: --flatten must be in [0, 0.5); found 0.5"], err
+    assert f"(default {ref.RefineConfig().flatten}, RefineConfig's;" in help_text
     assert not (tmp_path / "out.yaml").exists()
 
 
