@@ -62,16 +62,17 @@ SCALES = {
     "smoke": dict(image_scale=0.125, frames=2, steps=30, rounds=2, seeds=(0,),
                   pano_hw=(16, 64), refine_hw=(16, 64), smoothness=0.02, mae_scale=0.125,
                   held_out=2),
-    # 512 px: at 256 px the objective's own minimum sits 0.3 deg / 8 mm from the truth (a
-    # refinement started at the true poses drifts there), at 512 px within 0.1 deg. RTSS is
+    # 512 px: at 256 px the objective's own minimum sat 0.3 deg / 8 mm from the truth (a
+    # refinement started at the true poses drifted there; measured before the images were
+    # flattened, RefineConfig.flatten), at 512 px within 0.1 deg. RTSS is
     # scored at 256 px, where RS-E32 is at its best on these rigs (its 7-pixel window and 32
     # candidates are sized for it: MAE 0.11 at 256 px, 0.42 at 512 px on paper-test3).
     # Three rounds: the first round's distances were matched at the perturbed calibration,
     # and on far scenes a translation error hides in them (one round left 10-27 mm); matched
     # again at the refined poses they let the translations go (a fourth and fifth round moved
-    # no camera by more than 0.4 mm more). Eight frames (--frames 8) are not better overall:
-    # they bring paper-train seed 1 inside the pose target and take both paper-test3 runs out
-    # (experiments/results/calibration_refinement_cpu_8frames.md).
+    # no camera by more than 0.4 mm more). Eight frames (--frames 8, before flattening) were
+    # not better overall: they brought paper-train seed 1 inside the pose target and took both
+    # paper-test3 runs out (experiments/results/calibration_refinement_cpu_8frames.md).
     "cpu": dict(image_scale=0.5, frames=3, steps=400, rounds=3, seeds=(0, 1),
                 pano_hw=(40, 160), refine_hw=(48, 192), smoothness=0.002, mae_scale=0.25,
                 held_out=16),
