@@ -19,7 +19,11 @@ For every rig and seed:
    ``mae_scale`` (the size RS-E32 is made for): on the refinement's own scenes, and on
    ``held_out`` other scenes of the rig (seeds ``1000 * seed + 500 + k``) that the refinement
    never saw, with the per-scene paired difference aligned - true (bootstrap 95 % interval
-   over the scenes).
+   over the scenes);
+5. separate information from bias: the deviation of each pose that the frames alone predict
+   at the refined calibration (``gijax.calibrate.constraint.pose_constraint``, no labels), and
+   the drift of one round started at the true poses and the true distances (where the
+   objective's own minimum lies; a diagnostic that uses the labels).
 
 Targets: refined poses within 0.1 degrees and 3 mm of the truth modulo the gauge; RTSS MAE with
 the refined calibration in the truth's gauge within 5 % of its MAE with the true one, on the
@@ -264,10 +268,10 @@ def table(rows: list) -> str:
     (``gijax.calibrate.constraint.pose_constraint`` at the refined calibration: rotation,
     translation along its least constrained direction, and the share of that direction's
     photometric curvature the re-fitted distances absorb) and how far one round started at
-    the truth drifts from it (the objective's own bias); on each run's first line RS-E32's MAE with the
-    true / perturbed / refined poses and the refined ones in the truth's gauge, on the
-    refinement's frames and on the held-out scenes, and the held-out per-scene difference of
-    the gauge-aligned poses from the true ones."""
+    the truth drifts from it (the objective's own bias); on each run's first line RS-E32's
+    MAE with the true / perturbed / refined poses and the refined ones in the truth's gauge,
+    on the refinement's frames and on the held-out scenes, and the held-out per-scene
+    difference of the gauge-aligned poses from the true ones."""
     body = []
     for r in rows:
         held = {k: v["mae"] for k, v in r["held_out"].items()}

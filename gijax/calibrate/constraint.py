@@ -4,12 +4,14 @@ refinement's objective in the pose parameters once the distance maps have re-fit
 A translation can hide in the distances: on far scenes, moving a camera and bending the
 distance maps together leaves the photometric agreement almost unchanged, so the refinement's
 answer along that direction is set by noise, not by the frames. The measure here is the one
-that captures it, the Schur complement of the objective's Hessian in the pose parameters,
+that captures it, the Schur complement of the objective's curvature in the pose parameters,
 
     S = H_pp - H_pd H_dd^-1 H_dp,
 
 ``p`` the pose updates of :func:`gijax.calibrate.refine.initial_parameters` (rotation vectors
-and translations of cameras 1..N-1) and ``d`` the frames' log inverse distances. ``H_dd`` is
+and translations of cameras 1..N-1) and ``d`` the frames' log inverse distances. ``H`` is the
+Gauss-Newton matrix of the data term (positive semi-definite, so ``S`` is too; the full
+Hessian is indefinite away from a minimum) plus the smoothness's exact Hessian. ``H_dd`` is
 taken per panorama point (its diagonal): the data term couples no two points, and the
 smoothness, which couples neighbours, is weak at the refinement's settings; neglecting it
 lets the distances absorb a little more than they can, so ``S`` errs towards "weakly
@@ -22,10 +24,13 @@ From ``S`` a predicted standard deviation: the independent-points model of least
 restricted to the gauge (camera 1's translation along its arm from camera 0 is not a
 parameter of the rig: see :data:`gijax.calibrate.refine.GAUGE`). Neighbouring samples of
 blurred images are not independent, so these figures are a lower bound on the real spread: they
-rank cameras and frame sets, and a large one says the frames do not pin that pose down.
+rank cameras and frame sets, and a large one says the frames do not pin that pose down. They
+measure information, not bias: a systematic pull (an unmodelled vignetting, occlusions) moves
+the answer by more than they say.
 
 Pure and traceable: :func:`pose_information`. The report at the edge: :func:`pose_constraint`
-(concrete frames, NumPy out) and :func:`weak_constraint_lines`.
+(concrete frames, NumPy out), :func:`constraint_report`, :func:`weak_constraint_lines` and
+:func:`constraint_lines`.
 """
 
 from __future__ import annotations

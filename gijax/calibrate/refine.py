@@ -42,9 +42,9 @@ translation moves on the sphere of that radius around camera 0:
 are measured modulo that gauge (:func:`gauge_aligned_errors`).
 
 Pure and traceable: :func:`apply_calibration`, :func:`prepare_images`,
-:func:`frame_samples`, :func:`frame_terms`, :func:`refinement_loss`. The loop at the edge (:func:`refine_rig`: RTSS
-initialisation, checks on concrete frames, progress bar) and the reports
-(:func:`pose_change`, :func:`align_gauge`, :func:`gauge_aligned_errors`,
+:func:`frame_samples`, :func:`frame_terms`, :func:`refinement_loss`. The loop at the edge
+(:func:`refine_rig`: RTSS initialisation, checks on concrete frames, progress bar) and the
+reports (:func:`pose_change`, :func:`align_gauge`, :func:`gauge_aligned_errors`,
 :func:`frame_texture`, :func:`frame_overlap`, :func:`transfer_refinement`) are not traced.
 """
 
