@@ -44,7 +44,7 @@ from gijax.candidates import (closed_form, parallax, parametrisation, rig_aware,
                               uniformity)
 from gijax.design import constraints, optimize, spec as design_spec
 from gijax.geometry import cameras, field_of_view, occluder, panorama, rig as rig_lib, rotations
-from gijax.geometry import panorama_frame
+from gijax.geometry import panorama_frame, visibility
 from gijax.geometry.panorama import Panorama
 from gijax.sampling import bilinear_sample, bilinear_sample_zero_padded
 from gijax.sweep import consistency, grid, grids, matching, sample, surrogate
@@ -535,6 +535,14 @@ def _cylinder_hit(seed):
 @case(occluder.cylinder_intersection, diff=(0, 1, 2), degenerate=CYLINDER_DEGENERATE)
 def _cylinder_intersection(seed):
     return (_cylinder(seed), *_rays_and_origins(seed))
+
+
+@case(visibility.visible_from, call=lambda p, c: visibility.visible_from(p, c, 8),
+      diff=(0, 1), degenerate=[("point at the viewpoint, on the pole", lambda: (
+          jnp.asarray([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0], [0.0, 0.0, 3.0]], F64),
+          jnp.zeros(3, F64)), False)])
+def _visible_from(seed):
+    return points(seed, 6), jnp.asarray([0.1 * seed, -0.05, 0.02], F64)
 
 
 @case(panorama.lonlat_to_direction, diff=(0, 1))

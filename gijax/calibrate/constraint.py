@@ -71,7 +71,7 @@ def neighbour_colouring(hw: tuple) -> np.ndarray:
 
 def pose_information(params: dict, rig: Rig, images: Array, masks: Array, pano: Panorama,
                      smoothness: float = 0.02, edge_scale: float = 0.05,
-                     guides: Optional[Array] = None) -> dict:
+                     guides: Optional[Array] = None, occlusion: float = 0.05) -> dict:
     """The refinement objective's Gauss-Newton curvature in the pose parameters (pure; jit
     with ``pano`` static).
 
@@ -90,6 +90,8 @@ def pose_information(params: dict, rig: Rig, images: Array, masks: Array, pano: 
       guides: (F, H, W, 3) the smoothness's edge colours, held fixed (see
         :func:`gijax.calibrate.refine.frame_terms`); None for the objective's own, which
         couples more than neighbours, so the distances' diagonal is then approximate.
+      occlusion: as :class:`gijax.calibrate.refine.RefineConfig` (static); which points a
+        camera sees is held (a step function of the distances, without derivative).
 
     Returns a dict: ``pose`` (P, P) the curvature in the pose parameters with the distances
     held, ``marginal`` (P, P) the Schur complement with the distances re-fitted per point,
@@ -109,7 +111,7 @@ def pose_information(params: dict, rig: Rig, images: Array, masks: Array, pano: 
 
     def colours(v, li):
         refined = apply_calibration(rig, unflatten(v))
-        return jax.vmap(lambda im, m, d: frame_samples(refined, im, m, d, pano))(
+        return jax.vmap(lambda im, m, d: frame_samples(refined, im, m, d, pano, occlusion))(
             images, masks, li)
 
     cols, wts = colours(flat, log_inv)                      # (F, N, H, W, 3), (F, N, H, W)
@@ -141,7 +143,8 @@ def pose_information(params: dict, rig: Rig, images: Array, masks: Array, pano: 
     # product per colour reads its diagonal.
     def smooth(li):
         return smoothness * refinement_loss(dict(unflatten(flat), log_inv=li), rig, images,
-                                            masks, pano, 1.0, edge_scale, guides)[1]["smooth"]
+                                            masks, pano, 1.0, edge_scale, guides,
+                                            occlusion)[1]["smooth"]
 
     smooth_grad = jax.grad(smooth)
     colouring = neighbour_colouring(log_inv.shape[-2:])
@@ -153,7 +156,7 @@ def pose_information(params: dict, rig: Rig, images: Array, masks: Array, pano: 
     cols_pd = h_pd.reshape(h_pd.shape[0], -1)
     marginal = h_pp - (cols_pd * inv_dd.reshape(-1)) @ cols_pd.T
     data = refinement_loss(unflatten(flat), rig, images, masks, pano, smoothness, edge_scale,
-                           guides)[1]["data"]
+                           guides, occlusion)[1]["data"]
     return {"pose": 0.5 * (h_pp + h_pp.T), "marginal": 0.5 * (marginal + marginal.T),
             "distance": h_dd, "data": data, "points": jnp.sum(seen)}
 
@@ -171,9 +174,11 @@ def gauge_basis(rig: Rig) -> np.ndarray:
     return u[:, : p - 1]
 
 
-@functools.partial(jax.jit, static_argnames=("pano", "smoothness", "edge_scale"))
-def _information_jit(params, rig, images, masks, pano, smoothness, edge_scale, guides):
-    return pose_information(params, rig, images, masks, pano, smoothness, edge_scale, guides)
+@functools.partial(jax.jit, static_argnames=("pano", "smoothness", "edge_scale", "occlusion"))
+def _information_jit(params, rig, images, masks, pano, smoothness, edge_scale, guides,
+                     occlusion):
+    return pose_information(params, rig, images, masks, pano, smoothness, edge_scale, guides,
+                            occlusion)
 
 
 def pose_constraint(rig: Rig, images: np.ndarray, masks: np.ndarray,
@@ -187,7 +192,8 @@ def pose_constraint(rig: Rig, images: np.ndarray, masks: np.ndarray,
       images: (F, N, h, w, 3) the frames (uint8, or float in [0, 1]); ``masks`` (F, N, h, w).
       inv_distance: (F, H, W) the frames' inverse distances on the refinement's panorama
         (:attr:`~gijax.calibrate.refine.RefineResult.inv_distance`).
-      config: the refinement's settings (panorama, finest blur, smoothness, edge scale).
+      config: the refinement's settings (panorama, finest blur, smoothness, edge scale,
+        occlusion margin).
 
     Returns ``{'cameras': [{'name', 'sigma_rotation_deg', 'sigma_translation_mm',
     'weak_direction', 'absorbed'}...], 'data', 'points'}``: per camera the predicted standard
@@ -217,10 +223,11 @@ def pose_constraint(rig: Rig, images: np.ndarray, masks: np.ndarray,
     fine = _prepared(images, masks, config.blur[-1], config.flatten)
     jmasks = jnp.asarray(masks)
     guides = jnp.stack([_frame_terms_jit(work, fine[f], jmasks[f], params["log_inv"][f],
-                                         pano)["colour"] for f in range(len(images))])
+                                         pano, float(config.occlusion))["colour"]
+                        for f in range(len(images))])
     info = jax.device_get(_information_jit(params, work, fine, jmasks, pano,
                                            float(config.smoothness), float(config.edge_scale),
-                                           guides))
+                                           guides, float(config.occlusion)))
     return constraint_report(rig, info)
 
 

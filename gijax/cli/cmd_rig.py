@@ -120,9 +120,12 @@ def _refine(args) -> int:
     print(f"gauge: {GAUGE}")
     if args.flatten is not None and not 0 <= args.flatten < 0.5:
         raise ValueError(f"--flatten must be in [0, 0.5); found {args.flatten}")
+    if args.occlusion is not None and not 0 <= args.occlusion < 1:
+        raise ValueError(f"--occlusion must be in [0, 1); found {args.occlusion}")
     config = RefineConfig(steps=args.steps, intrinsics=args.intrinsics, rounds=args.rounds,
                           **({} if args.smoothness is None else {"smoothness": args.smoothness}),
-                          **({} if args.flatten is None else {"flatten": args.flatten}))
+                          **({} if args.flatten is None else {"flatten": args.flatten}),
+                          **({} if args.occlusion is None else {"occlusion": args.occlusion}))
     start = None
     if args.start_distance is not None:
         if not args.start_distance > 0:
@@ -160,7 +163,8 @@ def _refine(args) -> int:
                                 "translation_mm": m["translation_mm"]}
                                for m in result.round_moves],
                "scale": scale, "intrinsics": bool(args.intrinsics), "gauge": GAUGE,
-               "flatten": config.flatten, "smoothness": config.smoothness,
+               "flatten": config.flatten, "occlusion": config.occlusion,
+               "smoothness": config.smoothness,
                "loss_before": result.loss_before, "loss_after": result.loss_after,
                "cameras": [{"name": n, "rotation_deg": moved["rotation_deg"][i],
                             "translation_mm": moved["translation_mm"][i]}
@@ -275,6 +279,15 @@ def register(subparsers) -> None:
                           "pulls the poses: on renders whose lenses darken up to 35 %% at the "
                           "rim, a refinement started at the true poses drifted 6 mm without "
                           "it and under 1 mm with it")
+    ref.add_argument("--occlusion", type=float, default=None, metavar="MARGIN",
+                     help="compare a camera's colour at a panorama point only where no nearer "
+                          "point of the frame's distance map hides that point from the camera, "
+                          "MARGIN being how much farther (relative, in inverse distance) than "
+                          "the nearest point in its direction it may lie and still count as "
+                          "seen (default 0.05, RefineConfig's; 0: every point counts as seen). "
+                          "Cameras far apart see different stretches of a wall behind a post: "
+                          "on renders of a 1 m rig, a refinement started at the true poses "
+                          "drifted up to 4.6 mm without the test and 2.3 mm with it")
     ref.add_argument("--start-distance", type=float, metavar="METRES",
                      help="start every panorama ray at this distance instead of at the classical "
                           "baseline's estimate (faster; for scenes the baseline handles badly)")
