@@ -228,6 +228,21 @@ def test_gauge_of_apply_calibration():
                                    np.asarray(rig.translations), atol=1e-12)
 
 
+@pytest.mark.parametrize("degrees", [0.004, 0.013, 0.6, 179.0])
+def test_pose_change_resolves_small_turns_of_float32_poses(degrees):
+    """A camera turned by a known angle about a random axis, poses stored in float32 as the
+    refinement keeps them: the reported angle is the turn's to float32 accuracy, also under
+    the 0.02 degree that an arccos of the trace cannot resolve in float32."""
+    rng = np.random.default_rng(int(degrees * 1000))
+    rig = triangle_rig()
+    axis = rng.normal(size=3)
+    turned = turn(rig, 1, axis, degrees)
+    f32 = [r.replace(rotations=jnp.asarray(r.rotations, jnp.float32)) for r in (rig, turned)]
+    moved = ref.pose_change(*f32)["rotation_deg"]
+    assert moved[0] == pytest.approx(0.0, abs=2e-5) and moved[2] == pytest.approx(0.0, abs=2e-5)
+    assert moved[1] == pytest.approx(degrees, abs=2e-5)
+
+
 def test_pose_gradient_matches_central_differences(quick_compiles_here):
     """d loss / d (rotation, translation) in float64 against central differences, at a pose
     a fraction of a degree off (bilinear samples away from pixel centres)."""

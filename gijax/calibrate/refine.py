@@ -672,9 +672,14 @@ def transfer_refinement(full: Rig, before: Rig, after: Rig) -> Rig:
 
 
 def _rotation_angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    rel = np.einsum("nji,njk->nik", a, b)
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    return np.degrees(np.arccos(cos))
+    """Angle of each ``a_i^T b_i`` in degrees, as ``atan2(2 sin, 2 cos)``: the sine from the
+    antisymmetric part keeps small angles exact. ``arccos`` of the trace cannot tell angles
+    under about 0.02 degree from zero in float32 poses (the trace is 3 to within its rounding)."""
+    rel = np.einsum("nji,njk->nik", np.asarray(a, np.float64), np.asarray(b, np.float64))
+    two_sin = np.linalg.norm(np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0],
+                                       rel[:, 1, 0] - rel[:, 0, 1]], -1), axis=-1)
+    two_cos = np.trace(rel, axis1=1, axis2=2) - 1.0
+    return np.degrees(np.arctan2(two_sin, two_cos))
 
 
 # The working width of a refinement (pixels): the bundled model's and the cpu-scale experiments'
