@@ -393,6 +393,39 @@ def test_far_frames_constrain_translation_loosely_and_the_report_says_so():
     assert len(text) == 2 and text[1].startswith(f"  cam2: {far[2]['sigma_rotation_deg']:.3f} deg")
 
 
+def test_a_camera_compares_only_the_points_it_sees():
+    """A frame whose distance map holds a near patch (0.5 m) in front of a far background
+    (4 m): with the occlusion test each camera's weights are its weights without it times the
+    points' visibility from that camera's centre, some background points are hidden from the
+    cameras off the reference point, and the frame's terms weigh the points by what the
+    cameras see."""
+    from gijax.geometry.panorama_frame import panorama_rays
+    from gijax.geometry.visibility import visible_from
+
+    rig = triangle_rig()
+    images, masks = (x[0] for x in frames(rig))
+    pano = Panorama.hemisphere(24, 96)
+    inv = np.full(pano.shape, 0.25)
+    inv[4:10, 20:32] = 2.0
+    log_inv = jnp.asarray(np.log(inv), jnp.float32)
+    args = (rig, jnp.asarray(images), jnp.asarray(masks), log_inv, pano)
+    _, plain = (np.asarray(x) for x in ref.frame_samples(*args, occlusion=0.0))
+    _, seen = (np.asarray(x) for x in ref.frame_samples(*args, occlusion=0.05))
+    pts = np.asarray(rig.reference) + (1.0 / inv)[..., None] * np.asarray(
+        panorama_rays(rig, pano, jnp.float32))
+    hidden = 0
+    for k in range(rig.num_cameras):
+        vis = np.asarray(visible_from(jnp.asarray(pts, jnp.float32), rig.translations[k],
+                                      pano.width, 0.05))
+        np.testing.assert_allclose(seen[k], plain[k] * vis, rtol=1e-6, atol=1e-7)
+        hidden += int(((plain[k] > 0.5) & (vis == 0)).sum())
+    assert hidden > 10
+    on = ref.frame_terms(*args, occlusion=0.05)
+    off = ref.frame_terms(*args, occlusion=0.0)
+    np.testing.assert_allclose(np.asarray(on["weight"]), seen.sum(0), rtol=1e-6)
+    assert float(np.sum(on["weight"])) < float(np.sum(off["weight"])) - 10.0
+
+
 def test_flattening_removes_a_vignetting_the_gain_cannot():
     """The same textured view through a lens 35 % darker at the rim (the renderer's strongest
     vignetting) and through a flat one: one gain per camera leaves them over 15 % apart
@@ -546,6 +579,10 @@ def test_command_smoothness_option_reaches_the_refinement_and_refuses_a_negative
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["gijax rig: error: --flatten must be in [0, 0.5); found 0.5"], err
     assert f"(default {ref.RefineConfig().flatten}, RefineConfig's;" in help_text
+    assert main(argv + ["--occlusion", "1"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["gijax rig: error: --occlusion must be in [0, 1); found 1.0"], err
+    assert f"(default {ref.RefineConfig().occlusion}, RefineConfig's;" in help_text
     assert not (tmp_path / "out.yaml").exists()
 
 
