@@ -111,8 +111,9 @@ class RefineConfig:
       occlusion: the margin of the test whether a camera sees a panorama point or a nearer
         point hides it (relative, in inverse distance; 0: every point counts as seen), see
         :func:`gijax.geometry.visibility.visible_from`. Cameras 1 m apart see different
-        stretches of a wall behind a post: comparing them there pulled the poses 2-5 mm off
-        in a refinement started at the true poses (0.7-2.3 mm with 0.05).
+        stretches of a wall behind a post: comparing them there pulled the poses of the
+        widest built-in rig 1.8-4.6 mm off in a refinement started at the true poses
+        (1.0-2.7 mm with 0.05).
       rounds: how many times the whole schedule runs. Every round after the first starts
         again from the classical baseline's distances, now matched at the calibration the
         previous round reached, with a fresh optimiser: the first round's starting distances
