@@ -43,10 +43,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gijax.calibrate.refine import (MAX_DISTANCE, MIN_DISTANCE, SEEN_WEIGHT, RefineConfig,
-                                    _frame_terms_jit, _prepared, apply_calibration,
-                                    frame_samples, initial_parameters, refine_panorama,
-                                    refinement_loss)
+from gijax.calibrate.refine import (MAX_DISTANCE, MIN_DISTANCE, OCCLUSION_MARGIN, SEEN_WEIGHT,
+                                    RefineConfig, _frame_terms_jit, _prepared,
+                                    apply_calibration, frame_samples, initial_parameters,
+                                    refine_panorama, refinement_loss)
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import choose_panorama, with_panorama_rotation
 from gijax.geometry.rig import Rig
@@ -71,7 +71,7 @@ def neighbour_colouring(hw: tuple) -> np.ndarray:
 
 def pose_information(params: dict, rig: Rig, images: Array, masks: Array, pano: Panorama,
                      smoothness: float = 0.02, edge_scale: float = 0.05,
-                     guides: Optional[Array] = None, occlusion: float = 0.05) -> dict:
+                     guides: Optional[Array] = None, occlusion: float = OCCLUSION_MARGIN) -> dict:
     """The refinement objective's Gauss-Newton curvature in the pose parameters (pure; jit
     with ``pano`` static).
 

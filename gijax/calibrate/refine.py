@@ -82,6 +82,8 @@ GAUGE = ("camera 0's pose is held fixed and the distance between cameras 0 and 1
          "(images fix neither where the rig is nor its scale)")
 # A point counts as compared when at least this much camera weight sees it (two cameras).
 SEEN_WEIGHT = 1.5
+# The occlusion test's default margin (RefineConfig.occlusion; relative, in inverse distance).
+OCCLUSION_MARGIN = 0.05
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,7 +138,7 @@ class RefineConfig:
     min_texture: float = 0.02
     min_overlap: float = 0.05
     flatten: float = 0.05
-    occlusion: float = 0.05
+    occlusion: float = OCCLUSION_MARGIN
     rounds: int = 1
 
     def __post_init__(self):
@@ -249,7 +251,7 @@ def blur_radius(sigma: float) -> int:
 
 
 def frame_samples(rig: Rig, images: Array, masks: Array, log_inv: Array,
-                  pano: Panorama, occlusion: float = 0.05) -> tuple[Array, Array]:
+                  pano: Panorama, occlusion: float = OCCLUSION_MARGIN) -> tuple[Array, Array]:
     """Every camera's view of one frame's panorama points ``reference + ray / inv``.
 
     Args as :func:`frame_terms`. Returns ``(colours, weights)``: (N, H, W, 3) each camera's
@@ -279,7 +281,7 @@ def frame_samples(rig: Rig, images: Array, masks: Array, log_inv: Array,
 
 def frame_terms(rig: Rig, images: Array, masks: Array, log_inv: Array,
                 pano: Panorama, edge_scale: float = 0.05,
-                guide: Optional[Array] = None, occlusion: float = 0.05) -> dict:
+                guide: Optional[Array] = None, occlusion: float = OCCLUSION_MARGIN) -> dict:
     """One frame's photometric terms at the calibration of ``rig``.
 
     Args:
@@ -327,7 +329,7 @@ def frame_terms(rig: Rig, images: Array, masks: Array, log_inv: Array,
 def refinement_loss(params: dict, rig: Rig, images: Array, masks: Array, pano: Panorama,
                     smoothness: float = 0.02, edge_scale: float = 0.05,
                     guides: Optional[Array] = None,
-                    occlusion: float = 0.05) -> tuple[Array, dict]:
+                    occlusion: float = OCCLUSION_MARGIN) -> tuple[Array, dict]:
     """The objective over frames: mean data term + ``smoothness`` x mean smoothness.
 
     ``params`` as :func:`initial_parameters` (``log_inv`` (F, H, W)); ``images`` (F, N, h, w, 3)
@@ -385,7 +387,7 @@ def frame_texture(images: np.ndarray, masks: np.ndarray) -> list:
 
 
 def frame_overlap(rig: Rig, images: np.ndarray, masks: np.ndarray, log_inv: np.ndarray,
-                  pano: Panorama, occlusion: float = 0.05) -> float:
+                  pano: Panorama, occlusion: float = OCCLUSION_MARGIN) -> float:
     """The fraction of one frame's panorama that two cameras see at ``log_inv`` (a concrete
     report of :func:`frame_terms`' ``overlap``; ``occlusion`` see :class:`RefineConfig`)."""
     terms = _frame_terms_jit(rig, jnp.asarray(images, jnp.float32),
