@@ -21,10 +21,14 @@ _unproj = jax.jit(C.unproject)
 # test draws alpha from the fisheye range [0.52, 0.8] (float64 covers the whole range).
 F32_ROUND_TRIP = 3.7e-4
 F64_ROUND_TRIP = 1e-8
-# The Unified model (omni) chains more float32 steps (unit sphere, shift, radial-tangential
-# polynomial, its 2-D Newton inverse): on lenses whose image corners see up to 130 degrees it
-# reaches 6.4e-4 px, five steps at [1024, 2048); the bound is six.
-F32_ROUND_TRIP_OMNI = 7.4e-4
+# The Unified model (omni) with a small xi sees far past 90 degrees in the image corners (up to
+# 127 degrees at xi = 0.6), where a pixel moves thousands of pixels per radian of the ray: the
+# float32 rounding of the unprojected ray's direction, a few eps, then moves the pixel by
+# eps * |d pixel / d ray| on top of the three steps above (8.5e-4 px measured at 7000 px/rad).
+# Its bound is therefore per pixel: F32_ROUND_TRIP + F32_RAY_ROUNDINGS * eps * that
+# sensitivity (the spectral norm of the projection's Jacobian with respect to the unit ray, in
+# float64). Over 300 drawn lenses the largest excess was 0.90 eps * |J|.
+F32_RAY_ROUNDINGS = 2.0
 
 
 def ds_params(draw):
@@ -90,6 +94,15 @@ def _round_trip(cam, px):
     return back, ok & ok2, ok, jnp.linalg.norm(ray, axis=-1)
 
 
+def _ray_sensitivity(params, px):
+    """|d pixel / d ray| (pixels per radian) at each pixel's float64 ray, for the omni model."""
+    with jax.enable_x64(True):
+        cam = C.make_camera("omni", params, W, H, FOV["omni"], dtype=jnp.float64)
+        ray, _ = C.unproject(cam, jnp.asarray(px, jnp.float64))
+        jac = jax.vmap(jax.jacfwd(lambda r: C.project(cam, r)[0]))(ray)
+        return np.asarray(jnp.linalg.norm(jac, ord=2, axis=(-2, -1)))
+
+
 def _check_round_trip(model, params, dtype, tol):
     if dtype == jnp.float32 and "alpha" in params:
         params = dict(params, alpha=0.52 + 0.28 * (params["alpha"] - 0.35) / 0.4)
@@ -115,7 +128,10 @@ def _check_round_trip(model, params, dtype, tol):
         r2 = (mx * mx + my * my) * params.get("beta", 1.0) * (2 * params["alpha"] - 1)
         assert r2.min() > 0.97, r2.min()
     err = np.abs(back.astype(np.float64) - px.astype(np.float64))[ok]
-    assert err.max() <= tol, (model, params, err.max())
+    if model == "omni" and dtype == jnp.float32:
+        tol = tol + F32_RAY_ROUNDINGS * np.finfo(np.float32).eps * _ray_sensitivity(
+            params, px)[ok][:, None]
+    assert (err <= tol).all(), (model, params, err.max())
     np.testing.assert_allclose(norm[ok], 1.0, atol=1e-6 if dtype == jnp.float32 else 1e-14)
     return err.max()
 
@@ -125,8 +141,7 @@ def test_round_trip_float32(model):
     @settings(max_examples=8, deadline=None)
     @given(intrinsics(model))
     def run(params):
-        _check_round_trip(model, params, jnp.float32,
-                          F32_ROUND_TRIP_OMNI if model == "omni" else F32_ROUND_TRIP)
+        _check_round_trip(model, params, jnp.float32, F32_ROUND_TRIP)
 
     run()
 
