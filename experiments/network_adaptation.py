@@ -51,6 +51,7 @@ from experiments.reporting import (fmt, log, publish_section, save_figure, save_
 from experiments.workfolder import (dataset_seeds, gijax_command, metrics_records,  # noqa: E402
                                     render_recorded, rig_file_argument)
 from gijax.bench.machine import machine_info  # noqa: E402
+from gijax.geometry.visibility import OCCLUSION_MARGIN  # noqa: E402
 from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "network_adaptation"
@@ -72,9 +73,12 @@ SCALES = {
 # name -> (label, LabelFree weights, whether the teacher's maps are built)
 VARIANTS = {
     "photometric": ("adapted: photometric + smoothness",
-                    dict(photometric=1.0, smoothness=0.01, teacher=0.0)),
+                    dict(photometric=1.0, smoothness=0.01, teacher=0.0, occlusion=0.0)),
+    "occlusion": ("adapted: photometric + smoothness, occlusion-aware",
+                  dict(photometric=1.0, smoothness=0.01, teacher=0.0,
+                       occlusion=OCCLUSION_MARGIN)),
     "teacher": (f"adapted: photometric + smoothness + {TEACHER} teacher",
-                dict(photometric=1.0, smoothness=0.01, teacher=None)),
+                dict(photometric=1.0, smoothness=0.01, teacher=None, occlusion=0.0)),
 }
 
 
@@ -96,6 +100,8 @@ def adapt_argv(model: str, frames: Path, out: Path, cfg: dict, weights: dict, va
             "--steps", cfg["steps"], "--lr", cfg["lr"], "--batch", cfg["batch"],
             "--seed", 0, "--max-frames", cfg["frames"], "--val", val,
             "--val-every", cfg["val_every"]]
+    if weights["occlusion"]:
+        argv += ["--occlusion", weights["occlusion"]]
     if weights["teacher"]:
         argv += ["--teacher", weights["teacher"], "--teacher-preset", TEACHER]
     return argv
@@ -202,6 +208,11 @@ def comparisons(rows: dict) -> list:
             continue
         p = paired_difference(rows[name]["mae_per_sample"], before)
         out.append((f"{name} vs before", p, bool(rows[name]["mae"] < rows["before"]["mae"])))
+    if "occlusion" in rows and "photometric" in rows:
+        p = paired_difference(rows["occlusion"]["mae_per_sample"],
+                              rows["photometric"]["mae_per_sample"])
+        out.append(("occlusion vs photometric", p, bool(rows["occlusion"]["mae"]
+                                                        < rows["photometric"]["mae"])))
     if "teacher" in rows:
         p = paired_difference(rows["teacher"]["mae_per_sample"], rows[TEACHER]["mae_per_sample"])
         out.append((f"teacher vs {TEACHER}", p, bool(rows["teacher"]["mae"]

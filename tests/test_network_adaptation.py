@@ -168,6 +168,45 @@ def test_objective_never_reads_labels_and_weighs_its_terms(sphere):
         LabelFree(teacher=-1.0)
 
 
+def test_occlusion_hides_points_behind_nearer_ones_of_the_same_sample_only(sphere):
+    """Two samples: a far map (4 m) with a near patch (0.5 m) and the far map alone. With the
+    occlusion test each camera's weights on the first are its weights without it times the
+    points' visibility from its centre (background points behind the patch hidden from the
+    cameras off the reference point); the second sample's weights are unchanged (the first
+    sample's patch hides nothing in it); the objective records the margin and rejects a bad
+    one."""
+    from gijax.geometry.panorama_frame import panorama_rays
+    from gijax.geometry.visibility import visible_from
+    from gijax.train.unlabeled import camera_samples
+
+    rig = sphere["rig"]
+    inv = np.full((2, *PANO.shape), 0.25, np.float32)
+    inv[0, 2:6, 24:36] = 2.0
+    sur = jnp.concatenate([sphere["surrogates"]] * 2)
+    masks = jnp.concatenate([sphere["masks"]] * 2)
+    _, plain = (np.asarray(x) for x in camera_samples(sur, masks, rig, jnp.asarray(inv), PANO,
+                                                      SPANO))
+    _, seen = (np.asarray(x) for x in camera_samples(sur, masks, rig, jnp.asarray(inv), PANO,
+                                                     SPANO, occlusion=0.05))
+    pts = np.asarray(rig.reference) + (1.0 / inv[0])[..., None] * np.asarray(
+        panorama_rays(rig, PANO, jnp.float32))
+    hidden = 0
+    for k in range(rig.num_cameras):
+        vis = np.asarray(visible_from(jnp.asarray(pts, jnp.float32), rig.translations[k],
+                                      PANO.width, 0.05))
+        np.testing.assert_allclose(seen[k, 0], plain[k, 0] * vis, rtol=1e-6, atol=1e-7)
+        hidden += int(((plain[k, 0] > 0.5) & (vis == 0)).sum())
+    assert hidden > 5
+    np.testing.assert_allclose(seen[:, 1], plain[:, 1], rtol=1e-6, atol=1e-7)
+    batch = {"surrogates": sur, "masks": masks}
+    on = label_free_terms(LabelFree(occlusion=0.05), jnp.asarray(inv), batch, rig, PANO)
+    off = label_free_terms(LabelFree(), jnp.asarray(inv), batch, rig, PANO)
+    assert float(on["photometric"]) != float(off["photometric"])
+    with pytest.raises(ValueError, match=r"LabelFree\.occlusion must be a margin in \[0, 1\) "
+                                         r"\(0: off\); found 1\.5"):
+        LabelFree(occlusion=1.5)
+
+
 # ------------------------------------------------------------------- adaptation runs
 
 @pytest.fixture(scope="module")

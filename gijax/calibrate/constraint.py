@@ -43,13 +43,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from gijax.calibrate.refine import (MAX_DISTANCE, MIN_DISTANCE, OCCLUSION_MARGIN, SEEN_WEIGHT,
-                                    RefineConfig, _frame_terms_jit, _prepared,
-                                    apply_calibration, frame_samples, initial_parameters,
-                                    refine_panorama, refinement_loss)
+from gijax.calibrate.refine import (MAX_DISTANCE, MIN_DISTANCE, SEEN_WEIGHT, RefineConfig,
+                                    _frame_terms_jit, _prepared, apply_calibration,
+                                    frame_samples, initial_parameters, refine_panorama,
+                                    refinement_loss)
 from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import choose_panorama, with_panorama_rotation
 from gijax.geometry.rig import Rig
+from gijax.geometry.visibility import OCCLUSION_MARGIN
 from gijax.sweep.consistency import view_dispersion
 
 Array = jax.Array

@@ -69,7 +69,7 @@ from gijax.geometry.panorama_frame import choose_panorama, panorama_of, panorama
     with_panorama_rotation
 from gijax.geometry.rig import Rig, is_homogeneous
 from gijax.geometry.rotations import axis_angle_to_matrix
-from gijax.geometry.visibility import visible_from
+from gijax.geometry.visibility import OCCLUSION_MARGIN, visible_from
 from gijax.sampling import bilinear_sample
 from gijax.sweep.consistency import view_dispersion
 
@@ -82,8 +82,6 @@ GAUGE = ("camera 0's pose is held fixed and the distance between cameras 0 and 1
          "(images fix neither where the rig is nor its scale)")
 # A point counts as compared when at least this much camera weight sees it (two cameras).
 SEEN_WEIGHT = 1.5
-# The occlusion test's default margin (RefineConfig.occlusion; relative, in inverse distance).
-OCCLUSION_MARGIN = 0.05
 
 
 @dataclasses.dataclass(frozen=True)

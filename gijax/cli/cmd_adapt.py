@@ -66,6 +66,13 @@ def register(subparsers) -> None:
                    help="compare the cameras' colours as they are; by default each camera's "
                         "colours are first scaled to the cameras' common mean (cameras differ "
                         "in exposure and white balance, which would hide the distance)")
+    p.add_argument("--occlusion", type=float, default=0.0, metavar="MARGIN",
+                   help="compare a camera's colour at a predicted point only where no nearer "
+                        "predicted point hides it from that camera, MARGIN being how much "
+                        "farther (relative, in inverse distance) than the nearest point in its "
+                        "direction it may lie and still count as seen (0: off, every camera "
+                        "that images the point is compared; 0.05 is 'gijax rig refine''s "
+                        "default)")
     p.add_argument("--teacher", type=float, default=0.0,
                    help="weight of the classical baseline as a teacher where it is trusted "
                         "(0: no teacher; it is then not run)")
@@ -110,7 +117,8 @@ def run(args) -> int:
                          f"{args.teacher_max_dispersion}")
     objective = LabelFree(photometric=args.photometric, smoothness=args.smoothness,
                           teacher=args.teacher, edge_scale=args.edge,
-                          normalize_gain=not args.no_gain_normalisation)
+                          normalize_gain=not args.no_gain_normalisation,
+                          occlusion=args.occlusion)
     args.interrupted_keeps = (f"{work_folder(args.out)} keeps the checkpoints written so far; "
                               f"the same command resumes from the last")
     result = adapt_network(

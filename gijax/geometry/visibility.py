@@ -31,8 +31,14 @@ from gijax.geometry.panorama import Panorama, direction_to_pixel
 
 Array = jax.Array
 
+# The default margin (relative, in inverse distance). Across one bin (1.9 degrees at 192 bins)
+# a surface turned up to about 55 degrees from facing the viewpoint changes its inverse
+# distance by less than this, while a post at 1 m before a wall at 3 m differs by 67 %.
+OCCLUSION_MARGIN = 0.05
 
-def visible_from(points: Array, centre: Array, width: int, margin: float = 0.05) -> Array:
+
+def visible_from(points: Array, centre: Array, width: int,
+                 margin: float = OCCLUSION_MARGIN) -> Array:
     """1 where the viewpoint ``centre`` (3,) sees ``points`` (..., 3), 0 where a nearer point
     of the same set in the same direction hides it (see the module docstring).
 

@@ -31,6 +31,7 @@ from gijax.checks import bad_field
 from gijax.geometry.panorama import Panorama, direction_to_pixel
 from gijax.geometry.panorama_frame import panorama_rays
 from gijax.geometry.rig import Rig
+from gijax.geometry.visibility import OCCLUSION_MARGIN, visible_from
 from gijax.sampling import bilinear_sample
 from gijax.sweep.consistency import common_mean_gains, view_dispersion
 from gijax.train.losses import RELEASE_INV_SCALE, smooth_l1
@@ -55,7 +56,8 @@ def normalize_gain(surrogates: Array, masks: Array) -> Array:
 
 
 def camera_samples(surrogates: Array, masks: Array, rig: Rig, inv_distance: Array,
-                   pano: Panorama, surrogate_pano: Panorama) -> tuple[Array, Array]:
+                   pano: Panorama, surrogate_pano: Panorama,
+                   occlusion: float = 0.0) -> tuple[Array, Array]:
     """Every camera's colour at each panorama pixel's point ``reference + ray / inv_distance``.
 
     Args:
@@ -64,9 +66,13 @@ def camera_samples(surrogates: Array, masks: Array, rig: Rig, inv_distance: Arra
       rig: the rig (at the model's size; the panorama follows its panorama frame).
       inv_distance: (B, H, W) inverse distance, 1/m, on ``pano``.
       pano, surrogate_pano: the panorama and the surrogate images' hemisphere.
+      occlusion: with a margin > 0 (static), a camera's weight is 0 where a nearer point of
+        the same sample's panorama hides the point from the camera
+        (:func:`gijax.geometry.visibility.visible_from` with that margin, bins of the
+        panorama's width); 0 counts every point as seen.
 
     Returns ``(colours (N, B, H, W, 3), weights (N, B, H, W))``: bilinear samples and the
-    sampled mask (0 where the point is outside the camera's hemisphere).
+    sampled mask (0 where the point is outside the camera's hemisphere or hidden from it).
     """
     dtype = surrogates.dtype
     rays = panorama_rays(rig, pano, dtype)                               # (H, W, 3)
@@ -79,7 +85,12 @@ def camera_samples(surrogates: Array, masks: Array, rig: Rig, inv_distance: Arra
         px, in_front = direction_to_pixel(surrogate_pano, pc)
         packed = jnp.concatenate([img, mask[..., None].astype(dtype)], -1)
         vals, ok = jax.vmap(bilinear_sample)(packed, px, in_front)
-        return vals[..., :3], vals[..., 3] * ok.astype(dtype)
+        weight = vals[..., 3] * ok.astype(dtype)
+        if occlusion > 0:
+            # Each sample's points hide only each other.
+            seen = jax.vmap(lambda p: visible_from(p, trans, pano.width, occlusion))(pts)
+            weight = weight * seen
+        return vals[..., :3], weight
 
     return jax.vmap(one_camera, in_axes=(1, 1, 0, 0))(surrogates, masks, rig.rotations,
                                                       rig.translations)
@@ -185,6 +196,10 @@ class LabelFree:
     weight leaves its term out. The teacher term needs the batch's :data:`TEACHER_KEYS`.
     ``normalize_gain`` compares the cameras after :func:`normalize_gain` (real and rendered
     cameras differ in exposure; without it the photometric term barely sees the distance).
+    ``occlusion`` > 0 leaves a camera out of the photometric term and the smoothness term's
+    reference colours wherever a nearer predicted point hides the point from it (the margin
+    of :func:`gijax.geometry.visibility.visible_from`, :data:`OCCLUSION_MARGIN` is the
+    calibration refinement's); 0 compares every camera that images the point.
     """
 
     photometric: float = 1.0
@@ -192,6 +207,7 @@ class LabelFree:
     teacher: float = 0.0
     edge_scale: float = 10.0
     normalize_gain: bool = True
+    occlusion: float = 0.0
 
     def __post_init__(self):
         for field in ("photometric", "smoothness", "teacher", "edge_scale"):
@@ -202,6 +218,10 @@ class LabelFree:
         if not (self.photometric or self.smoothness or self.teacher):
             raise ValueError("label-free objective: every weight is 0; give the photometric, "
                              "smoothness or teacher term a positive weight")
+        if (isinstance(self.occlusion, bool) or not isinstance(self.occlusion, (int, float))
+                or not 0 <= self.occlusion < 1):
+            raise bad_field("LabelFree", "occlusion", "a margin in [0, 1) (0: off)",
+                            self.occlusion)
         if not isinstance(self.normalize_gain, bool):
             raise bad_field("LabelFree", "normalize_gain", "true or false", self.normalize_gain)
         if self.smoothness and not (self.photometric or self.teacher):
@@ -234,7 +254,8 @@ def label_free_terms(objective: LabelFree, inv_distance: Array, batch: dict, rig
     spano = Panorama.hemisphere(*surrogates.shape[2:4])
     terms = {}
     if objective.photometric or objective.smoothness:
-        cols, wts = camera_samples(surrogates, masks, rig, inv, pano, spano)
+        cols, wts = camera_samples(surrogates, masks, rig, inv, pano, spano,
+                                   objective.occlusion)
         per_pixel, total = view_dispersion(cols, wts)
         if objective.photometric:
             terms["photometric"] = _mean_over(per_pixel, _seen(total))
