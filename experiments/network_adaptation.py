@@ -12,12 +12,14 @@ cameras than any rig of the bundle's mixture) and:
    list recomputed for the ring's spacing: the paper's way of moving a model to a new rig
    without training), and the classical baseline RS-E32;
 3. adapts the bundle on the frames with ``gijax adapt`` (:func:`gijax.train.rig_adaptation.
-   adapt_network`), once with the photometric and smoothness terms only and once with RS-E32
-   as a teacher where it is confident, the held-out labels logged as validation (never part
-   of the objective, never used to choose a checkpoint: the bundle is the last step's);
-4. scores both adapted bundles, and compares scene by scene (paired bootstrap of the per-scene
-   MAE differences, :func:`experiments.claims.paired_difference`): adapted vs before, and the
-   teacher-adapted model vs its teacher.
+   adapt_network`): with the photometric and smoothness terms comparing every camera that
+   images a point, the same leaving out the cameras a nearer predicted point hides it from
+   (``--occlusion``, the default), and that with RS-E32 as a teacher where it is confident;
+   the held-out labels logged as validation (never part of the objective, never used to
+   choose a checkpoint: the bundle is the last step's);
+4. scores the adapted bundles, and compares scene by scene (paired bootstrap of the per-scene
+   MAE differences, :func:`experiments.claims.paired_difference`): adapted vs before, the
+   occlusion test vs none, and the teacher-adapted model vs its teacher.
 
 Claims: MAE after adaptation lower than before; with the teacher, lower than the teacher's.
 
@@ -30,6 +32,7 @@ are reused (a run resumes where it stopped; an evaluation is keyed by the weight
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -72,13 +75,14 @@ SCALES = {
 }
 # name -> (label, LabelFree weights, whether the teacher's maps are built)
 VARIANTS = {
-    "photometric": ("adapted: photometric + smoothness",
+    "photometric": ("adapted: photometric + smoothness, every camera compared",
                     dict(photometric=1.0, smoothness=0.01, teacher=0.0, occlusion=0.0)),
-    "occlusion": ("adapted: photometric + smoothness, occlusion-aware",
+    "occlusion": ("adapted: photometric + smoothness, occlusion-aware (gijax adapt's default)",
                   dict(photometric=1.0, smoothness=0.01, teacher=0.0,
                        occlusion=OCCLUSION_MARGIN)),
-    "teacher": (f"adapted: photometric + smoothness + {TEACHER} teacher",
-                dict(photometric=1.0, smoothness=0.01, teacher=None, occlusion=0.0)),
+    "teacher": (f"adapted: photometric + smoothness + {TEACHER} teacher, occlusion-aware",
+                dict(photometric=1.0, smoothness=0.01, teacher=None,
+                     occlusion=OCCLUSION_MARGIN)),
 }
 
 
@@ -100,8 +104,7 @@ def adapt_argv(model: str, frames: Path, out: Path, cfg: dict, weights: dict, va
             "--steps", cfg["steps"], "--lr", cfg["lr"], "--batch", cfg["batch"],
             "--seed", 0, "--max-frames", cfg["frames"], "--val", val,
             "--val-every", cfg["val_every"]]
-    if weights["occlusion"]:
-        argv += ["--occlusion", weights["occlusion"]]
+    argv += ["--occlusion", weights["occlusion"]]
     if weights["teacher"]:
         argv += ["--teacher", weights["teacher"], "--teacher-preset", TEACHER]
     return argv
@@ -122,6 +125,13 @@ def adapt(work: Path, cfg: dict, model: str, model_id: str, name: str, frames: P
     argv = adapt_argv(model, frames, out, cfg, weights, test)
     command = gijax_command(argv)
     done = [r for r in metrics_records(work_folder(out)) if "loss" in r]
+    config = work_folder(out) / "config.json"
+    if config.is_file():
+        ran = json.loads(config.read_text())["train"].get("label_free")
+        if ran != LabelFree(**weights).to_dict():
+            raise SystemExit(f"{name}: {work_folder(out)} was adapted with the objective {ran}, "
+                             f"not this variant's {LabelFree(**weights).to_dict()}; move it "
+                             "away to adapt afresh")
     t0 = time.perf_counter()
     if (out / "weights.npz").is_file() and done and done[-1]["step"] >= cfg["steps"]:
         log(f"{name}: reusing {out} ({cfg['steps']} steps)")

@@ -199,8 +199,8 @@ def test_occlusion_hides_points_behind_nearer_ones_of_the_same_sample_only(spher
     assert hidden > 5
     np.testing.assert_allclose(seen[:, 1], plain[:, 1], rtol=1e-6, atol=1e-7)
     batch = {"surrogates": sur, "masks": masks}
-    on = label_free_terms(LabelFree(occlusion=0.05), jnp.asarray(inv), batch, rig, PANO)
-    off = label_free_terms(LabelFree(), jnp.asarray(inv), batch, rig, PANO)
+    on = label_free_terms(LabelFree(), jnp.asarray(inv), batch, rig, PANO)    # the default
+    off = label_free_terms(LabelFree(occlusion=0.0), jnp.asarray(inv), batch, rig, PANO)
     assert float(on["photometric"]) != float(off["photometric"])
     with pytest.raises(ValueError, match=r"LabelFree\.occlusion must be a margin in \[0, 1\) "
                                          r"\(0: off\); found 1\.5"):

@@ -13,9 +13,10 @@ bundle (--out) that every --ckpt accepts.
 
 Objective, each term with its weight (0 leaves it out):
   --photometric  each predicted panorama point is projected into every camera and the
-                 cameras' colours there are compared (masks respected; each camera's colours
-                 first scaled to the cameras' common mean): the right distance makes them
-                 agree;
+                 cameras' colours there are compared (masks respected; a camera that a nearer
+                 predicted point hides the point from is left out, see --occlusion; each
+                 camera's colours first scaled to the cameras' common mean): the right
+                 distance makes them agree;
   --smoothness   edge-aware smoothness of the predicted inverse distance (divided by its
                  mean): differences between neighbouring pixels cost exp(-EDGE |colour
                  difference|) of the reference panorama (the cameras' mean colour at the
@@ -66,13 +67,18 @@ def register(subparsers) -> None:
                    help="compare the cameras' colours as they are; by default each camera's "
                         "colours are first scaled to the cameras' common mean (cameras differ "
                         "in exposure and white balance, which would hide the distance)")
-    p.add_argument("--occlusion", type=float, default=0.0, metavar="MARGIN",
+    from gijax.geometry.visibility import OCCLUSION_MARGIN
+
+    p.add_argument("--occlusion", type=float, default=OCCLUSION_MARGIN, metavar="MARGIN",
                    help="compare a camera's colour at a predicted point only where no nearer "
                         "predicted point hides it from that camera, MARGIN being how much "
                         "farther (relative, in inverse distance) than the nearest point in its "
-                        "direction it may lie and still count as seen (0: off, every camera "
-                        "that images the point is compared; 0.05 is 'gijax rig refine''s "
-                        "default)")
+                        f"direction it may lie and still count as seen (default "
+                        f"{OCCLUSION_MARGIN:g}, as 'gijax rig refine'; 0: every camera that "
+                        "images the point is compared). Cameras a baseline apart see different "
+                        "stretches of a wall behind a post: on renders of a 0.5 m ring, "
+                        "adapting without the test did not lower the held-out error, with it "
+                        "it did")
     p.add_argument("--teacher", type=float, default=0.0,
                    help="weight of the classical baseline as a teacher where it is trusted "
                         "(0: no teacher; it is then not run)")
