@@ -597,15 +597,19 @@ def test_network_adaptation_commands_parse_and_claims_compare_scene_by_scene(tmp
         args = build_parser().parse_args(shlex.split(na.gijax_command(argv))[1:])
         assert (args.ckpt, args.steps, args.lr, args.batch) == ("G16VV-cpu-zncc", cfg["steps"],
                                                                 cfg["lr"], cfg["batch"])
-        assert (args.photometric, args.smoothness, args.teacher) == (
-            weights["photometric"], weights["smoothness"], weights["teacher"])
+        assert (args.photometric, args.smoothness, args.teacher, args.occlusion) == (
+            weights["photometric"], weights["smoothness"], weights["teacher"],
+            weights["occlusion"])
     rows = {"before": {"mae": 0.05, "mae_per_sample": [0.04, 0.06, None]},
             na.TEACHER: {"mae": 0.03, "mae_per_sample": [0.03, 0.03, 0.02]},
             "photometric": {"mae": 0.045, "mae_per_sample": [0.035, 0.055, 0.01]},
+            "occlusion": {"mae": 0.046, "mae_per_sample": [0.03, 0.06, 0.02]},
             "teacher": {"mae": 0.04, "mae_per_sample": [0.03, 0.05, 0.01]}}
     out = {t: (p, h) for t, p, h in na.comparisons(rows)}
     p, holds = out["photometric vs before"]
     assert holds and p["scenes"] == 2 and p["lower"] == 2 and abs(p["mean"] + 0.005) < 1e-12
+    p, holds = out["occlusion vs photometric"]
+    assert not holds and p["scenes"] == 3 and p["lower"] == 1 and abs(p["mean"] - 0.01 / 3) < 1e-12
     p, holds = out[f"teacher vs {na.TEACHER}"]
     assert not holds and p["scenes"] == 3 and abs(p["mean"] - 0.01 / 3) < 1e-12
 
