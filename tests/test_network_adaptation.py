@@ -207,6 +207,30 @@ def test_occlusion_hides_points_behind_nearer_ones_of_the_same_sample_only(spher
         LabelFree(occlusion=1.5)
 
 
+def test_a_run_stored_before_the_occlusion_test_resumes_only_as_it_ran(tmp_path):
+    """A run folder whose stored objective predates ``occlusion`` compared every camera: it
+    reads back with occlusion 0, resuming it with the new default is refused, and with
+    ``--occlusion 0`` it continues."""
+    import dataclasses
+
+    from gijax.candidates.closed_form import gi_candidates
+    from gijax.store.configs import CONFIG_FILE, run_config_document
+    from gijax.train.config import load_run_config
+    from gijax.train.run_folder import check_resumable
+
+    stored = {k: v for k, v in LabelFree().to_dict().items() if k != "occlusion"}
+    cand = np.asarray(gi_candidates(8, 0.5, 100.0), np.float64)
+    (tmp_path / CONFIG_FILE).write_text(json.dumps(run_config_document(
+        {"preset": "G8-cpu", "seed": 3, "label_free": stored, "batch_norm": "frozen"}, TINY,
+        cand, "paper-train")))
+    old, mc, _ = load_run_config(tmp_path)
+    assert old.label_free == {**stored, "occlusion": 0.0}
+    with pytest.raises(ValueError, match=r"'occlusion': 0\.0.*'occlusion': 0\.05"):
+        check_resumable(tmp_path, dataclasses.replace(old, label_free=LabelFree().to_dict()), mc)
+    check_resumable(tmp_path, dataclasses.replace(
+        old, label_free=LabelFree(occlusion=0.0).to_dict()), mc)
+
+
 # ------------------------------------------------------------------- adaptation runs
 
 @pytest.fixture(scope="module")

@@ -190,9 +190,14 @@ def save_run_config(run_dir: str | os.PathLike, config: TrainConfig, candidates,
 
 def load_run_config(run_dir: str | os.PathLike) -> tuple[TrainConfig, ModelConfig, list]:
     """Read ``RUN/config.json`` -> (TrainConfig, ModelConfig, candidates in metres)."""
+    from gijax.train.unlabeled import stored_objective
+
     run = read_run_config(run_dir)
+    train = dict(run.train)
+    if isinstance(train.get("label_free"), dict):
+        train["label_free"] = stored_objective(train["label_free"])
     try:
-        return TrainConfig.from_dict(run.train), run.model, run.candidates
+        return TrainConfig.from_dict(train), run.model, run.candidates
     except TypeError as exc:
         raise ValueError(f"{Path(run_dir) / CONFIG_FILE}: unreadable run configuration "
                          f"({exc})") from exc

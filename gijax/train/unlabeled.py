@@ -42,6 +42,9 @@ Array = jax.Array
 MIN_VIEW_WEIGHT = 1.5
 # Keys a batch carries for the teacher term (besides the loader's surrogates and masks).
 TEACHER_KEYS = ("teacher_inv", "teacher_mask")
+# Fields the objective gained after run folders had stored it, with the value those runs
+# optimised (before the occlusion test every camera that imaged a point was compared).
+STORED_BEFORE = {"occlusion": 0.0}
 
 
 def normalize_gain(surrogates: Array, masks: Array) -> Array:
@@ -242,6 +245,14 @@ class LabelFree:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def stored_objective(doc: dict) -> dict:
+    """A run folder's stored :class:`LabelFree` weights with the fields it predates filled in
+    as that run optimised them (:data:`STORED_BEFORE`), so that resuming compares like with
+    like: a run stored before a field existed is not taken for one using the field's new
+    default."""
+    return {**STORED_BEFORE, **doc}
 
 
 def label_free_terms(objective: LabelFree, inv_distance: Array, batch: dict, rig: Rig,
