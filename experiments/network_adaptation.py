@@ -73,17 +73,19 @@ SCALES = {
                 val_every=100, summary="256 px images, 48 unlabeled frames, 32 held-out "
                                        "scenes, 400 steps of 2 frames"),
 }
-# name -> (label, LabelFree weights, whether the teacher's maps are built)
+# name -> (label, LabelFree weights; teacher None: the scale's teacher weight). Every variant
+# weighs the photometric and smoothness terms; the labels fit the figures' panel titles.
 VARIANTS = {
-    "photometric": ("adapted: photometric + smoothness, every camera compared",
+    "photometric": ("adapted, every camera compared",
                     dict(photometric=1.0, smoothness=0.01, teacher=0.0, occlusion=0.0)),
-    "occlusion": ("adapted: photometric + smoothness, occlusion-aware (gijax adapt's default)",
+    "occlusion": ("adapted, occlusion-aware (the default)",
                   dict(photometric=1.0, smoothness=0.01, teacher=0.0,
                        occlusion=OCCLUSION_MARGIN)),
-    "teacher": (f"adapted: photometric + smoothness + {TEACHER} teacher, occlusion-aware",
+    "teacher": (f"adapted, occlusion-aware + {TEACHER} teacher",
                 dict(photometric=1.0, smoothness=0.01, teacher=None,
                      occlusion=OCCLUSION_MARGIN)),
 }
+CURVE_COLOURS = {"photometric": "tab:blue", "occlusion": "tab:green", "teacher": "tab:purple"}
 
 
 def ensure_data(work: Path, cfg: dict, role: str) -> dict:
@@ -211,7 +213,8 @@ def curves(runs: list, rows: dict, path: Path, title: str) -> None:
     import matplotlib.pyplot as plt
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.4))
-    for run, colour in zip(runs, ("tab:blue", "tab:green")):
+    for run in runs:
+        colour = CURVE_COLOURS[run["name"]]
         recs = metrics_records(Path(run["run"]))
         steps = np.array([r["step"] for r in recs if "loss" in r])
         loss = np.array([r["loss"] for r in recs if "loss" in r])
