@@ -145,7 +145,10 @@ def adapt(work: Path, cfg: dict, model: str, model_id: str, name: str, frames: P
                                seed=0, max_frames=cfg["frames"], teacher_preset=TEACHER,
                                val=test, val_every=cfg["val_every"], progress=True,
                                invocation={"command": command, "git": revision()}, log=log)
+    made_at = sorted({r["git"] for r in metrics_records(work_folder(out))
+                      if r.get("event") == "started" and "git" in r})
     return {"name": name, "label": VARIANTS[name][0], "bundle": str(out), "command": command,
+            "reused": result is None, "made_at": made_at,
             "objective": weights, "run": str(work_folder(out)),
             "teacher_fraction": result.teacher_fraction if result else None,
             "seconds": time.perf_counter() - t0}
@@ -355,6 +358,13 @@ def main(argv=None) -> int:
           + f"; occlusion-aware (margin {OCCLUSION_MARGIN:g}) "
           + ", ".join(f"{at_truth[f'{k}@{OCCLUSION_MARGIN:g}']:.4f}"
                       for k in ("truth", "nearer", "farther")) + ".", "",
+          *([f"This invocation reused runs of earlier ones (resumable and keyed by the "
+             f"weights and objective): "
+             + "; ".join(f"{r['name']} (started at git "
+                         + ", ".join(g[:12] + (" with uncommitted files" if g.endswith("+dirty")
+                                               else "") for g in r["made_at"]) + ")"
+                         for r in runs if r["reused"]) + ".", ""]
+            if any(r["reused"] for r in runs) else []),
           "Commands: " + "; ".join(f"`{d['command']}`" for d in data)
           + "".join(f"; `{r['command']}`" for r in runs), "",
           f"![maps]({maps.name})", "", f"![curves]({curve.name})" if runs else "", ""]
