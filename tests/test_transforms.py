@@ -51,7 +51,7 @@ from gijax.sweep import consistency, grid, grids, matching, sample, surrogate
 from gijax.calibrate import refine as calib_refine
 from gijax.nn import cost_volume, layers, refine, regressor, spherical, upsample
 from gijax.evaluate import labels, metrics
-from gijax.train import losses
+from gijax.train import losses, unlabeled
 from gijax.data import augment, photometric
 from gijax.render import views as render_views
 from gijax.render.clearance import rig_clearance
@@ -66,7 +66,7 @@ pytestmark = pytest.mark.usefixtures("quick_compiles")
 
 COVERED_PACKAGES = ("gijax.geometry", "gijax.candidates", "gijax.sweep", "gijax.baseline",
                     "gijax.design", "gijax.nn", "gijax.calibrate", "gijax.evaluate")
-COVERED_MODULES = ("gijax.train.losses", "gijax.sampling",
+COVERED_MODULES = ("gijax.train.losses", "gijax.train.unlabeled", "gijax.sampling",
                    "gijax.numerics", "gijax.random_streams", "gijax.data.augment", "gijax.data.photometric",
                    "gijax.render.views", "gijax.render.random_scene")
 SEEDS = (0, 1)
@@ -114,6 +114,7 @@ def public_name(fn) -> str:
 # so too). Argument checks raise on concrete values and return nothing; reports and files
 # return Python values; builders turn names or static sizes into constants.
 NOT_TRACED = {
+    "gijax.train.unlabeled.stored_objective": "fills in a stored dict of weights",
     # argument checks
     "gijax.candidates.validation.is_concrete": "inspects whether values are traced",
     "gijax.candidates.validation.require": "argument check (raises, or a checkify debug check)",
@@ -1116,6 +1117,95 @@ def _calib_frame_samples(seed):
 def _calib_loss(seed):
     ims, ms = _calib_frame(seed)
     return _calib_params(seed), small_rig(seed), ims[None], ms[None]
+
+
+# ---------------------------------------------------------------- label-free objective
+
+# Two cameras' 4 x 8 hemisphere surrogates of one sample; the panorama is PANO (2 x 4).
+LF_SPANO = Panorama.hemisphere(4, 8)
+
+
+def _lf_batch(seed):
+    sur = jnp.stack([image(seed, 4, 8), image(seed + 1, 4, 8)])[None]      # (1, 2, 4, 8, 3)
+    masks = jnp.asarray(np.random.default_rng(60 + seed).uniform(0.6, 1.0, (1, 2, 4, 8)), F64)
+    return sur, masks
+
+
+def _lf_inv(seed):
+    return jnp.asarray(np.random.default_rng(70 + seed).uniform(0.3, 1.5, (1, *PANO.shape)), F64)
+
+
+@case(unlabeled.normalize_gain, diff=(0,))
+def _lf_normalize_gain(seed):
+    return _lf_batch(seed)
+
+
+@case(unlabeled.camera_samples, call=lambda sur, m, r, inv: unlabeled.camera_samples(
+    sur, m, r, inv, PANO, LF_SPANO), diff=(0, 1, 2, 3))
+def _lf_camera_samples(seed):
+    return (*_lf_batch(seed), small_rig(seed), _lf_inv(seed))
+
+
+@case(unlabeled.camera_samples, label="camera_samples[occlusion]",
+      call=lambda sur, m, r, inv: unlabeled.camera_samples(sur, m, r, inv, PANO, LF_SPANO,
+                                                           occlusion=0.05), diff=(0, 1, 3))
+def _lf_camera_samples_occlusion(seed):
+    return (*_lf_batch(seed), small_rig(seed), _lf_inv(seed))
+
+
+@case(unlabeled.photometric_map, call=lambda sur, m, r, inv: unlabeled.photometric_map(
+    sur, m, r, inv, PANO, LF_SPANO), diff=(0, 3))
+def _lf_photometric_map(seed):
+    return (*_lf_batch(seed), small_rig(seed), _lf_inv(seed))
+
+
+@case(unlabeled.photometric_loss, call=lambda sur, m, r, inv: unlabeled.photometric_loss(
+    sur, m, r, inv, PANO, LF_SPANO), diff=(0, 2, 3))
+def _lf_photometric_loss(seed):
+    return (*_lf_batch(seed), small_rig(seed), _lf_inv(seed))
+
+
+@case(unlabeled.reference_colours, call=lambda sur, m, r, inv: unlabeled.reference_colours(
+    sur, m, r, inv, PANO, LF_SPANO), diff=(0, 1, 3))
+def _lf_reference_colours(seed):
+    return (*_lf_batch(seed), small_rig(seed), _lf_inv(seed))
+
+
+# The colours (edge weights) and the teacher's map are targets, held constant (stop_gradient):
+# only the prediction is differentiated.
+@case(unlabeled.edge_aware_smoothness, diff=(0,))
+def _lf_smoothness(seed):
+    return _lf_inv(seed), jnp.broadcast_to(image(seed, *PANO.shape), (1, *PANO.shape, 3))
+
+
+@case(unlabeled.teacher_loss, diff=(0,))
+def _lf_teacher_loss(seed):
+    mask = jnp.asarray(np.random.default_rng(80 + seed).uniform(size=(1, *PANO.shape)) > 0.3,
+                       F64)
+    return _lf_inv(seed), _lf_inv(seed + 5), mask
+
+
+@case(unlabeled.teacher_confidence, call=lambda sur, m, r, t, v: unlabeled.teacher_confidence(
+    sur, m, r, t, v, PANO, LF_SPANO, 0.2))
+def _lf_teacher_confidence(seed):
+    valid = jnp.asarray(np.random.default_rng(90 + seed).uniform(size=(1, *PANO.shape)) > 0.2)
+    return (*_lf_batch(seed), small_rig(seed), _lf_inv(seed), valid)
+
+
+def _lf_terms(seed):
+    sur, masks = _lf_batch(seed)
+    return _lf_inv(seed), {"surrogates": sur, "masks": masks, "teacher_inv": _lf_inv(seed + 3),
+                           "teacher_mask": jnp.ones((1, *PANO.shape), F64)}, small_rig(seed)
+
+
+case(unlabeled.label_free_terms, call=lambda inv, b, r: unlabeled.label_free_terms(
+    unlabeled.LabelFree(smoothness=0.0, teacher=0.1), inv, b, r, PANO), diff=(0,))(_lf_terms)
+# The smoothness term's edge weights come from the cameras' colours at the predicted points,
+# held constant: its gradient leaves out how they move with the prediction, which central
+# differences see. Transformations only.
+case(unlabeled.label_free_terms, label="label_free_terms[smoothness]",
+     call=lambda inv, b, r: unlabeled.label_free_terms(
+         unlabeled.LabelFree(smoothness=0.5, teacher=0.1), inv, b, r, PANO))(_lf_terms)
 
 
 # ------------------------------------------------------------------------------ baseline
