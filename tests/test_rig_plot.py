@@ -57,7 +57,7 @@ def _outward_ring(n=4, radius=0.05):
         rots.append(np.stack([np.cross(down, forward), down, forward], axis=1))
         pos.append(radius * forward)
     rig = make_rig([_equidistant()] * n, np.stack(rots), np.stack(pos), np.zeros(3),
-                   masks=[_disc(15.0)] * n, dtype=np.float64)
+                   masks=[_disc(15.0)] * n, dtype=np.float32)
     return with_panorama_rotation(rig, choose_panorama(rig).rotation)
 
 
@@ -75,7 +75,7 @@ def test_fields_of_view_say_where_they_come_from():
     ring = camera_fields_of_view(_outward_ring())
     assert {source for _, source in ring} == {"mask"}
     no_mask = make_rig([_equidistant(190.0), _equidistant(focal=14.0)], np.tile(np.eye(3), (2, 1, 1)),
-                       [[0.0, 0, 0], [0.1, 0, 0]], dtype=np.float64)
+                       [[0.0, 0, 0], [0.1, 0, 0]], dtype=np.float32)
     (cone, s0), (lens, s1) = camera_fields_of_view(no_mask)
     assert (s0, s1) == ("cone", "lens")
     assert cone == pytest.approx(math.radians(190.0), rel=1e-6)
