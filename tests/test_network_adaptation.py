@@ -196,7 +196,7 @@ def test_occlusion_hides_points_behind_nearer_ones_of_the_same_sample_only(spher
                                       PANO.width, 0.05))
         np.testing.assert_allclose(seen[k, 0], plain[k, 0] * vis, rtol=1e-6, atol=1e-7)
         hidden += int(((plain[k, 0] > 0.5) & (vis == 0)).sum())
-    assert hidden > 5
+    assert hidden > 20          # 46 of the background pixels behind the patch, over the cameras
     np.testing.assert_allclose(seen[:, 1], plain[:, 1], rtol=1e-6, atol=1e-7)
     batch = {"surrogates": sur, "masks": masks}
     on = label_free_terms(LabelFree(), jnp.asarray(inv), batch, rig, PANO)    # the default
