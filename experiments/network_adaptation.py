@@ -32,7 +32,6 @@ are reused (a run resumes where it stopped; an evaluation is keyed by the weight
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -117,7 +116,9 @@ def adapt(work: Path, cfg: dict, model: str, model_id: str, name: str, frames: P
     """Adapt ``model`` (weights id ``model_id``) with variant ``name`` (resumes a stopped run;
     reuses a finished one). The run folder is keyed by the weights, so adapting another model
     starts afresh."""
+    from gijax.train.config import load_run_config
     from gijax.train.rig_adaptation import adapt_network, work_folder
+    from gijax.train.run_folder import is_resume
     from gijax.train.unlabeled import LabelFree
 
     weights = dict(VARIANTS[name][1])
@@ -127,13 +128,12 @@ def adapt(work: Path, cfg: dict, model: str, model_id: str, name: str, frames: P
     argv = adapt_argv(model, frames, out, cfg, weights, test)
     command = gijax_command(argv)
     done = [r for r in metrics_records(work_folder(out)) if "loss" in r]
-    config = work_folder(out) / "config.json"
-    if config.is_file():
-        ran = json.loads(config.read_text())["train"].get("label_free")
-        if ran != LabelFree(**weights).to_dict():
+    if is_resume(work_folder(out)):
+        ran = load_run_config(work_folder(out))[0].label_free
+        wanted = LabelFree(**weights).to_dict()
+        if ran != wanted:
             raise SystemExit(f"{name}: {work_folder(out)} was adapted with the objective {ran}, "
-                             f"not this variant's {LabelFree(**weights).to_dict()}; move it "
-                             "away to adapt afresh")
+                             f"not this variant's {wanted}; move it away to adapt afresh")
     t0 = time.perf_counter()
     if (out / "weights.npz").is_file() and done and done[-1]["step"] >= cfg["steps"]:
         log(f"{name}: reusing {out} ({cfg['steps']} steps)")
@@ -358,8 +358,8 @@ def main(argv=None) -> int:
           + f"; occlusion-aware (margin {OCCLUSION_MARGIN:g}) "
           + ", ".join(f"{at_truth[f'{k}@{OCCLUSION_MARGIN:g}']:.4f}"
                       for k in ("truth", "nearer", "farther")) + ".", "",
-          *([f"This invocation reused runs of earlier ones (resumable and keyed by the "
-             f"weights and objective): "
+          *([f"This invocation reused runs of earlier ones (keyed by the weights; one "
+             f"adapted with another objective is refused): "
              + "; ".join(f"{r['name']} (started at git "
                          + ", ".join(g[:12] + (" with uncommitted files" if g.endswith("+dirty")
                                                else "") for g in r["made_at"]) + ")"
