@@ -8,8 +8,10 @@ runs it twice untimed, then records ``--steps`` steps under ``jax.profiler.trace
 executed instruction of the compiled program (a fusion, a YNNPACK library call, a gather, ...)
 is one event of the trace; the dump's metadata names the JAX operation each instruction came
 from (``conv_general_dilated``, ``gather``, ``reduce_sum``, ...) and whether it belongs to the
-backward pass (a ``transpose(...)`` in its name stack). The table sums the events per operation
-and direction, per step.
+backward pass (a ``transpose(...)`` in its name stack). The first table sums the events per
+operation and direction, per step; the second per network stage and direction: the stage is the
+scope that ``gijax.model`` puts on each of its stages (``gijax.model.STAGES``); instructions
+without one are the loss, the optimiser, and copies and fusions whose metadata XLA dropped.
 
 The sum over instructions can exceed the step's wall time (XLA's thunk executor runs
 independent instructions side by side on the two cores) and is lower than it by the host's
@@ -41,12 +43,22 @@ ROOT = Path(__file__).resolve().parents[1]
 _INSTRUCTION = re.compile(r"^\s*(?:ROOT )?%?([\w.\-]+) = ", re.M)
 _WITH_OPERATION = re.compile(r"^\s*(?:ROOT )?%?([\w.\-]+) = .*?op_name=\"([^\"]+)\"", re.M)
 NO_OPERATION = "(copies and layout changes: no JAX operation)"
+OUTSIDE_STAGES = "(no stage: loss, optimiser, copies)"
 
 
 def operation_of(op_name: str) -> str:
     """``jit(step)/transpose(jvp())/conv_general_dilated`` -> ``conv_general_dilated [bwd]``."""
     primitive = op_name.split("/")[-1]
     return primitive + (" [bwd]" if "transpose(" in op_name else "")
+
+
+def stage_of(op_name: str) -> str:
+    """``jit(step)/transpose(jvp(unet_logits))/conv_general_dilated`` -> ``unet_logits [bwd]``."""
+    from gijax.model import STAGES
+
+    names = [t for t in re.findall(r"[\w\-]+", op_name) if t in STAGES]
+    stage = names[0] if names else OUTSIDE_STAGES
+    return stage + (" [bwd]" if "transpose(" in op_name else "")
 
 
 def program_text(dump: str) -> str:
@@ -78,19 +90,25 @@ def profile(preset: str, batch: int, steps: int, dump: str) -> dict:
             events = json.load(f)["traceEvents"]
     text = program_text(dump)
     origin = dict.fromkeys(_INSTRUCTION.findall(text), NO_OPERATION)
-    origin.update({name: operation_of(op) for name, op in _WITH_OPERATION.findall(text)})
+    with_op = _WITH_OPERATION.findall(text)
+    origin.update({name: operation_of(op) for name, op in with_op})
+    stage = dict.fromkeys(origin, OUTSIDE_STAGES)
+    stage.update({name: stage_of(op) for name, op in with_op})
     ms = collections.Counter()
     count = collections.Counter()
+    stage_ms = collections.Counter()
     for e in events:
-        key = origin.get(e.get("name", ""))
-        if e.get("ph") != "X" or key is None:
+        name = e.get("name", "")
+        if e.get("ph") != "X" or name not in origin:
             continue
-        ms[key] += e.get("dur", 0.0) / 1e3 / steps
-        count[key] += 1
+        ms[origin[name]] += e.get("dur", 0.0) / 1e3 / steps
+        count[origin[name]] += 1
+        stage_ms[stage[name]] += e.get("dur", 0.0) / 1e3 / steps
     rows = [{"operation": k, "ms_per_step": v, "instructions": count[k] // steps}
             for k, v in ms.most_common()]
+    stages = [{"stage": k, "ms_per_step": v} for k, v in stage_ms.most_common()]
     return {"preset": preset, "batch": batch, "steps": steps, "wall_s_per_step": wall,
-            "instruction_ms_per_step": sum(ms.values()), "rows": rows}
+            "instruction_ms_per_step": sum(ms.values()), "rows": rows, "stages": stages}
 
 
 def main() -> int:
@@ -134,6 +152,10 @@ def main() -> int:
             share = row["ms_per_step"] / res["instruction_ms_per_step"]
             print(f"{row['operation'][:43]:<44}{row['ms_per_step']:>9.1f}{share:>8.1%}"
                   f"{row['instructions']:>8}")
+        print(f"{'stage':<44}{'ms/step':>9}{'share':>8}")
+        for row in res["stages"]:
+            share = row["ms_per_step"] / res["instruction_ms_per_step"]
+            print(f"{row['stage'][:43]:<44}{row['ms_per_step']:>9.1f}{share:>8.1%}")
     from gijax.io.paths import write_json_atomic
 
     out = write_json_atomic(args.out, {"cpu_count": os.cpu_count(), "results": results})

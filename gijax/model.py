@@ -60,6 +60,25 @@ from gijax.sweep.matching import cell_zncc_batch_last
 
 Array = jax.Array
 
+# The network's stages, in the order ``OmniStereoNet.__call__`` runs them; each one's operations
+# carry its name in their JAX name stack (``jax.named_scope``), so that XLA's profile of a
+# compiled step (``benchmarks/bench_step_profile.py``) can say which stage an instruction
+# belongs to, forward or backward.
+STAGES = ("extract_features", "sweep", "matching", "build_cost_volume", "unet_logits",
+          "regress", "refined")
+
+
+def _stage(method):
+    """Run ``method`` under a name scope of its own name (one of :data:`STAGES`)."""
+    if method.__name__ not in STAGES:
+        raise ValueError(f"{method.__name__} is not one of the network's stages {STAGES}")
+
+    @functools.wraps(method)
+    def scoped(self, *args, **kwargs):
+        with jax.named_scope(method.__name__):
+            return method(self, *args, **kwargs)
+    return scoped
+
 
 def model_rig(rig: Rig) -> Rig:
     """The rig as the network needs it: its static masks are not used inside the model (per
@@ -195,6 +214,7 @@ class OmniStereoNet(nnx.Module):
         out["valid"] = jnp.repeat(jnp.repeat(cell_ok, k, axis=1), k, axis=2)
         return out
 
+    @_stage
     def extract_features(self, surrogates: Array) -> Array:
         """Surrogate images (B, N, Hs, Ws, 3) -> features (B, N, Hs/4, Ws/4, C), one extractor
         shared by all cameras."""
@@ -202,12 +222,14 @@ class OmniStereoNet(nnx.Module):
         feats = self.features(surrogates.reshape(b * n, hs, ws, 3))
         return feats.reshape(b, n, *feats.shape[1:])
 
+    @_stage
     def sweep(self, features: Array, masks: Array, grids: SweepGrids) -> tuple[Array, Array]:
         """Features (B, N, hf, wf, C) and masks (B, N, Hm, Wm) at the sweep grids by
         ``config.sweep_boundary``: (B, N, D, h, w, C) and the per-camera validity
         (B, N, D, h, w) bool (:func:`gijax.sweep.grids.sweep_features`)."""
         return sweep_features(features, masks, grids, self.config.sweep_boundary)
 
+    @_stage
     def matching(self, surrogates: Array, masks: Array, grids: SweepGrids) -> Array:
         """The matching-cost channel (B, D, h, w, 1): the cameras' agreement per candidate and
         cost cell (:func:`gijax.sweep.matching.cell_zncc_batch_last` of the grey levels at the
@@ -222,6 +244,7 @@ class OmniStereoNet(nnx.Module):
         ncc = cell_zncc_batch_last(grey, seen, cfg.matching_samples)    # (D, h, w, B)
         return jnp.moveaxis(ncc, -1, 0)[..., None]
 
+    @_stage
     def build_cost_volume(self, sampled: Array, valid: Array,
                           matching: Array | None = None) -> Array:
         """Swept features (B, N, D, h, w, C), their validity (B, N, D, h, w) and, for a model
@@ -229,10 +252,12 @@ class OmniStereoNet(nnx.Module):
         (B, D, h, w, unet_in)."""
         return self.cost_volume(sampled, valid.astype(sampled.dtype), matching)
 
+    @_stage
     def unet_logits(self, volume: Array) -> Array:
         """The cost volume (B, D, h, w, unet_in) -> the U-Net's logits (B, D, h, w)."""
         return self.unet(volume)
 
+    @_stage
     def regress(self, logits: Array, candidates: Array) -> dict:
         """Logits (B, D, h, w) and candidates (D,) metres -> the soft-argmax outputs at
         ``output_stride`` x the cost grid (whichever panorama it covers): ``inv_distance``,
@@ -243,6 +268,7 @@ class OmniStereoNet(nnx.Module):
         out["logits"] = logits
         return out
 
+    @_stage
     def refined(self, surrogates: Array, masks: Array, grids: SweepGrids, out: dict) -> dict:
         """The guided refinement of the soft-argmax outputs ``out`` (:meth:`regress`), from the
         cameras' colours at the guide grids: ``inv_distance`` and ``distance`` refined, the

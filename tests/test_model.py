@@ -421,3 +421,32 @@ def test_guided_refinement_starts_as_the_identity_and_trains_only_itself():
     assert all(np.all(np.isfinite(g)) for g in flat.values())
     assert any(np.abs(g).max() > 0 for k, g in flat.items() if k.startswith("refine/"))
     assert all(np.abs(g).max() == 0 for k, g in flat.items() if not k.startswith("refine/"))
+
+
+def test_every_stage_names_its_operations_forward_and_backward():
+    # The step profile (benchmarks/bench_step_profile.py) attributes XLA instructions to the
+    # network's stages by these scopes: each stage's operations, and their transposes in the
+    # gradient, must carry its name (lowered only, nothing compiled).
+    from gijax.model import STAGES
+
+    cfg = dataclasses.replace(TINY_VAR, name="tiny-all-stages", refine=True,
+                              matching_cost="zncc")
+    model = create_model(cfg, seed=0)
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, masks = inputs(3, 0)
+    grids = model_grids(cfg, rig, jnp.asarray(G8))
+    graphdef, state = nnx.split(model)
+
+    def loss(state):
+        out = nnx.merge(graphdef, state)(sur, masks, grids)
+        # The refinement holds the coarse estimate constant: both outputs reach every weight.
+        return jnp.mean(out["inv_distance"]) + jnp.mean(out["inv_distance_coarse"])
+
+    text = jax.jit(jax.grad(loss)).lower(state).as_text(debug_info=True)
+    for stage in STAGES:
+        assert f"jvp({stage})" in text, stage
+    # The matching cost is computed from the images alone: it has no backward.
+    for stage in ("extract_features", "sweep", "build_cost_volume", "unet_logits", "regress",
+                  "refined"):
+        assert f"transpose(jvp({stage}))" in text, stage

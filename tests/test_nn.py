@@ -152,6 +152,23 @@ def test_masked_variance_matches_numpy(n, seed, p_valid):
     assert np.all(got[few] == 0.0)
 
 
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(2, 4), seed=st.integers(0, 10_000), p_valid=st.floats(0.2, 1.0))
+def test_masked_variance_gradient_is_the_closed_form(n, seed, p_valid):
+    # d/df_k of the population variance over the valid cameras is 2 (f_k - mean) / count for a
+    # valid camera and 0 for the others; 0 everywhere in cells with fewer than 2 valid cameras.
+    rng = np.random.default_rng(seed)
+    f = rng.normal(size=(1, n, 2, 2, 3, 2))
+    v = rng.random((1, n, 2, 2, 3)) < p_valid
+    cot = rng.normal(size=(1, 2, 2, 3, 2))
+    got = jax.grad(lambda x: jnp.sum(masked_variance(x, jnp.asarray(v)) * cot))(
+        jnp.asarray(f, jnp.float32))
+    count = v.sum(1, keepdims=True)[..., None]
+    mean = (f * v[..., None]).sum(1, keepdims=True) / np.maximum(count, 1)
+    want = np.where(count >= 2, 2 * (f - mean) * v[..., None] / np.maximum(count, 1), 0.0)
+    np.testing.assert_allclose(np.asarray(got), want * cot[:, None], rtol=1e-5, atol=1e-6)
+
+
 def test_variance_gradients_finite_where_cameras_missing():
     rng = np.random.default_rng(0)
     f = jnp.asarray(rng.normal(size=(1, 3, 2, 2, 2, 2)), jnp.float32)

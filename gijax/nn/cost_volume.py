@@ -55,9 +55,14 @@ def masked_variance(features: Array, valid: Array) -> Array:
     """(B, Ncam, D, h, w, C), (B, Ncam, D, h, w) -> (B, D, h, w, C) variance over valid cameras.
 
     Divisions are by max(count, 1) and cells with fewer than 2 valid cameras are replaced by 0
-    with a select, so values and gradients are finite everywhere.
+    with a select, so values and gradients are finite everywhere. ``valid`` enters only through
+    ``valid > 0``, so nothing flows back to it.
     """
     v = (valid > 0).astype(features.dtype)                 # (B, Ncam, D, h, w)
+    return _variance(features, v)
+
+
+def _variance_forward(features: Array, v: Array) -> tuple[Array, tuple[Array, Array, Array]]:
     # The camera sums as contractions over the camera axis. On XLA's CPU backend this is the
     # fastest form inside the whole forward (G16V-released at paper size: 1.62 s, against
     # 1.83 s with jnp.sum and 6-7 s with the sums written out per camera, which XLA fuses
@@ -68,7 +73,26 @@ def masked_variance(features: Array, valid: Array) -> Array:
     mean = jnp.einsum("bndhwc,bndhw->bdhwc", features, v) / safe
     dev = features - mean[:, None]
     var = jnp.einsum("bndhwc,bndhw->bdhwc", dev * dev, v) / safe
-    return jnp.where(count >= 2.0, var, 0.0)
+    return jnp.where(count >= 2.0, var, 0.0), (dev, v, count)
+
+
+@jax.custom_vjp
+def _variance(features: Array, v: Array) -> Array:
+    return _variance_forward(features, v)[0]
+
+
+def _variance_backward(residuals, g):
+    # d var / d f_n = 2 v_n (f_n - mean) / count: the mean's own derivative drops out, since
+    # sum_k v_k (f_k - mean) = 0. Written out, the backward is one elementwise pass over the
+    # swept features; transposing the contractions made XLA broadcast the cotangent over the
+    # cameras and copy it (60 ms of a 0.9 s CPU training step). The mask is a step function of
+    # ``valid``: its cotangent is 0.
+    dev, v, count = residuals
+    scale = jnp.where(count >= 2.0, g * (2.0 / jnp.maximum(count, 1.0)), 0.0)
+    return dev * v[..., None] * scale[:, None], jnp.zeros_like(v)
+
+
+_variance.defvjp(_variance_forward, _variance_backward)
 
 
 class ConcatCostVolume(nnx.Module):
