@@ -644,3 +644,29 @@ def test_a_full_disk_stops_training_in_one_line_and_the_same_command_continues(t
         assert sorted(p.name for p in (disk / "run" / "checkpoints").iterdir()) == ["2", "4"]
     finally:
         subprocess.run(["umount", str(disk)], capture_output=True)
+
+
+def test_compiled_ahead_compiles_each_signature_once_and_trims_the_heap(monkeypatch):
+    import jax.numpy as jnp
+
+    from gijax.train import step as S
+
+    trims, lowered = [], []
+    monkeypatch.setattr(S, "release_freed_memory", lambda: trims.append(1) or True)
+    jitted = jax.jit(lambda x, scale: x * scale + 1.0)
+
+    class Counting:
+        def __call__(self, *args):
+            return jitted(*args)
+
+        def lower(self, *args):
+            lowered.append([np.shape(a) for a in args])
+            return jitted.lower(*args)
+
+    f = S.CompiledAhead(Counting())
+    np.testing.assert_array_equal(np.asarray(f(jnp.arange(3.0), 2.0)), [1.0, 3.0, 5.0])
+    np.testing.assert_array_equal(np.asarray(f(jnp.arange(3.0), 3.0)), [1.0, 4.0, 7.0])
+    assert len(lowered) == len(trims) == 1          # same shapes and types: compiled once
+    np.testing.assert_array_equal(np.asarray(f(jnp.arange(4.0), 2.0)), [1.0, 3.0, 5.0, 7.0])
+    np.testing.assert_array_equal(np.asarray(f(jnp.arange(3, dtype=jnp.int32), 2)), [1, 3, 5])
+    assert lowered == [[(3,), ()], [(4,), ()], [(3,), ()]] and len(trims) == 3
