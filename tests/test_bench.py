@@ -387,3 +387,45 @@ def test_precision_case_ratios_table_and_options():
     a = p.parse_args(["--cases", "precision", "--precision-presets", "G16VV-cpu", "G16VV",
                       "--precision-calibration", "1"])
     assert a.precision_presets == ["G16VV-cpu", "G16VV"] and a.precision_calibration == 1
+
+
+def test_stage_backward_is_the_gradient_of_the_weights_and_floating_inputs():
+    import jax.numpy as jnp
+
+    from gijax.bench.cases.programs import with_backward
+
+    def stage(state, x, seen):           # a floating output and a boolean one, as the sweep
+        return state["w"] * x ** 2, seen & (x > 0)
+
+    state, x, seen = {"w": jnp.float32(3.0)}, jnp.asarray([1.0, -2.0, 0.5]), jnp.ones(3, bool)
+    total, grads = with_backward(stage, True)(state, x, seen)
+    # sum(w x^2) = 15.75; d/dw = sum(x^2); d/dx = 2 w x; the boolean input gets none.
+    np.testing.assert_allclose(float(total), 15.75)
+    assert len(grads) == 2
+    np.testing.assert_allclose(float(grads[0]["w"]), 5.25)
+    np.testing.assert_allclose(np.asarray(grads[1]), [6.0, -12.0, 3.0])
+    _, (only,) = with_backward(stage, False)(state, x, seen)
+    np.testing.assert_allclose(float(only["w"]), 5.25)
+
+
+def test_train_stages_table_and_options(tmp_path, capsys):
+    from gijax.bench.suite import case_tables
+    from gijax.cli import main
+
+    rows = [{"preset": "G16VV-cpu", "batch": 8, "stage": "U-Net", "direction": d,
+             "ms_median": ms, "ms_iqr": 1.0, "ms_min": ms - 1, "gflop": 2.8,
+             "gflops_per_s": 2.8 / ms * 1e3} for d, ms in (("forward", 20.0),
+                                                           ("forward + backward", 80.0))]
+    rows[1].update(backward_ms=60.0, share=0.31)
+    title, got, cols = case_tables({"calibration": {"rows": []},
+                                    "cases": {"train-stages": {"rows": rows}}})[-1]
+    text = report.markdown_table(got, cols)
+    assert title.startswith("Training step by stage (batch 8, training mode")
+    assert "| G16VV-cpu | U-Net | forward + backward | 80.0 | 1.0 | 79.0 | 60.0 | 31.0% | 2.8 | 35.0 |" in text
+    # A preset or batch the cases cannot use is one error before the calibration.
+    assert main(["bench", "--cases", "train-stages", "--train-presets", "G16VV-nope",
+                 "--out", str(tmp_path / "bad")]) == 1
+    assert "G16VV-nope" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    assert main(["bench", "--cases", "train", "--train-batch", "0",
+                 "--out", str(tmp_path / "bad")]) == 1
+    assert "--train-batch must be at least 1; found 0" in capsys.readouterr().err

@@ -84,8 +84,8 @@ SUITES = {
 # On a GPU the calibration needs bigger problems to reach the device's limits.
 GPU_CALIBRATION = {"matmul_n": 8192, "bandwidth_mib": 2048}
 
-CASE_ORDER = ("forward", "stages", "onnx", "sweep", "candidates", "rtss", "train", "scaling",
-              "isolated", "precision", "torch-peer")
+CASE_ORDER = ("forward", "stages", "onnx", "sweep", "candidates", "rtss", "train", "train-stages",
+              "scaling", "isolated", "precision", "torch-peer")
 # 'isolated' spawns fresh processes per preset and exports every network, 'precision' exports
 # and runs three files per preset in fresh processes, 'torch-peer' spawns fresh processes per
 # preset, mode, batch, framework and round: they run when asked.
@@ -145,6 +145,15 @@ def run_suite(suite: str = "quick", device: str = "cpu", out_dir: str | Path = "
         if bad:
             raise ValueError(f"unknown suite setting(s) {bad}; valid: {sorted(fields)}")
         settings = dataclasses.replace(settings, **overrides)
+    if {"train", "train-stages"} & set(chosen):
+        # Before the first case runs: a bad preset or batch is an error now, not after the
+        # calibration and the cases before.
+        from gijax.nn.presets import get_preset
+
+        for name in settings.train_presets:
+            get_preset(name)
+        if settings.train_batch < 1:
+            raise ValueError(f"--train-batch must be at least 1; found {settings.train_batch}")
     if "torch-peer" in chosen:
         # Before the first case runs: a preset the twin cannot build is an error now.
         from gijax.bench.torch_peer import check_presets
@@ -249,6 +258,15 @@ def case_tables(result: dict) -> list[tuple[str, list, list]]:
         out.append(("Forward pass by stage (each compiled and timed alone)",
                     cases["stages"]["rows"],
                     [("preset", "preset"), ("stage", "stage"), ("output", "output"), *TIME_COLS,
+                     ("share", "share", _pct), *EFF_COLS,
+                     ("XLA peak MiB", "xla_peak_mib", ".0f")]))
+    if "train-stages" in cases:
+        rows = cases["train-stages"]["rows"]
+        batch = rows[0]["batch"] if rows else "?"
+        out.append((f"Training step by stage (batch {batch}, training mode; each stage's forward, "
+                    "and its forward and backward, compiled and timed alone)", rows,
+                    [("preset", "preset"), ("stage", "stage"), ("direction", "direction"),
+                     *TIME_COLS, ("backward ms", "backward_ms", ".1f"),
                      ("share", "share", _pct), *EFF_COLS,
                      ("XLA peak MiB", "xla_peak_mib", ".0f")]))
     if "onnx" in cases:
@@ -412,6 +430,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--warmup", type=int, default=None,
                         help="untimed warm-up calls (default: the suite's)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    train = parser.add_argument_group("train and train-stages cases")
+    train.add_argument("--train-presets", nargs="+", default=None, metavar="PRESET",
+                       help="presets whose training step is timed; train-stages cuts the first "
+                            "into its stages (default: G16VV-cpu quick, G16VV full)")
+    train.add_argument("--train-batch", type=int, default=None, metavar="B",
+                       help="batch of the training step (default: 2)")
     prec = parser.add_argument_group("precision case")
     prec.add_argument("--precision-presets", nargs="+", default=None, metavar="PRESET",
                       help="presets whose fp32 / fp16 / int8 files are timed (default: "
@@ -444,7 +468,8 @@ def run_from_args(args) -> int:
             "torch_modes": args.torch_modes, "torch_rounds": args.torch_rounds,
             "torch_threads": args.torch_threads, "torch_python": args.torch_python,
             "precision_presets": args.precision_presets,
-            "precision_calibration": args.precision_calibration}
+            "precision_calibration": args.precision_calibration,
+            "train_presets": args.train_presets, "train_batch": args.train_batch}
     overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in peer.items()
                  if v is not None}
     result = run_suite(args.suite, args.device, args.out, args.cases, args.reps, args.warmup,

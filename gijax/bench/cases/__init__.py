@@ -12,7 +12,7 @@ FLOPs and bytes (XLA cost analysis) and its memory (XLA memory analysis).
 * :mod:`~gijax.bench.cases.onnx_runtime`: JAX vs onnxruntime on the exported graph;
 * :mod:`~gijax.bench.cases.candidate_solver`: the rig-aware candidate solver;
 * :mod:`~gijax.bench.cases.baseline`: the classical RTSS baseline;
-* :mod:`~gijax.bench.cases.training`: one training step;
+* :mod:`~gijax.bench.cases.training`: one training step, and its stages forward and backward;
 * :mod:`~gijax.bench.cases.isolated`: every preset in fresh processes (:mod:`gijax.bench.isolated`);
 * :mod:`~gijax.bench.cases.precision`: onnxruntime on the fp32, fp16 and int8 files, fresh
   processes;
@@ -30,7 +30,7 @@ from gijax.bench.cases.network import forward, scaling, stages, sweep
 from gijax.bench.cases.onnx_runtime import onnx_vs_jax
 from gijax.bench.cases.precision import precision
 from gijax.bench.cases.torch_peer import torch_peer
-from gijax.bench.cases.training import train_step
+from gijax.bench.cases.training import train_stages, train_step
 
 CASES = {
     "forward": forward,
@@ -40,6 +40,7 @@ CASES = {
     "candidates": candidates,
     "rtss": rtss,
     "train": train_step,
+    "train-stages": train_stages,
     "scaling": scaling,
     "isolated": isolated,
     "precision": precision,

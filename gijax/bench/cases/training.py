@@ -1,4 +1,5 @@
-"""One optimiser step (forward, backward, Adam) of a preset on one device."""
+"""One optimiser step (forward, backward, Adam) of a preset on one device, and the step's
+stages (forward and backward) each compiled and timed alone."""
 
 from __future__ import annotations
 
@@ -7,11 +8,14 @@ import time
 import jax
 import numpy as np
 
-from gijax.bench.cases.context import Context, program_row, timing_row
+from gijax.bench.cases.context import Context, measure_program, program_row, timing_row
+from gijax.bench.cases.programs import stage_programs, with_backward
+from gijax.bench.cost import compile_fn
 from gijax.bench.memory import CaseMemory
 from gijax.bench.rigs import network_inputs, network_rig
 from gijax.bench.timing import time_call
 from gijax.geometry.layouts import builtin_rig
+from gijax.nn.presets import get_preset
 
 
 def train_step(ctx: Context) -> dict:
@@ -57,3 +61,35 @@ def train_step(ctx: Context) -> dict:
                **mem.result(), **program_row(compiled, stats.median, ctx.limits)}
         rows.append(row)
     return {"rows": rows}
+
+
+def train_stages(ctx: Context) -> dict:
+    """The training step's network cut into its stages, as :func:`stages` cuts the forward, at
+    the training batch in training mode: each stage's forward, and its forward and backward
+    (the gradient with respect to the weights and, after the first stage, to its input),
+    compiled and timed alone, with XLA's FLOPs and their rate against the measured peak."""
+    s = ctx.settings
+    cfg = get_preset(s.train_presets[0])
+    state, (sur, _), _, stage_fns = stage_programs(cfg, batch=s.train_batch, train=True)
+    rows, x = [], (sur,)
+    for i, (name, fn) in enumerate(stage_fns):
+        args = (state, *x)
+        ctx.log(f"training stage {cfg.name} {name} ...")
+        forward, compiled, _ = measure_program(
+            ctx, lambda fn=fn, args=args: (compile_fn(fn, *args), args))
+        out = compiled(*args)
+        both, _, _ = measure_program(
+            ctx, lambda fn=fn, args=args, i=i: (compile_fn(with_backward(fn, i > 0), *args),
+                                                args))
+        for direction, row in (("forward", forward), ("forward + backward", both)):
+            rows.append({"preset": cfg.name, "batch": s.train_batch, "stage": name,
+                         "direction": direction,
+                         **{k: v for k, v in row.items() if not k.startswith("rss")}})
+        rows[-1]["backward_ms"] = both["ms_median"] - forward["ms_median"]
+        x = out if isinstance(out, tuple) else (out,)
+    total = sum(r["ms_median"] for r in rows if r["direction"] == "forward + backward")
+    for r in rows:
+        if r["direction"] == "forward + backward":
+            r["share"] = r["ms_median"] / total
+    return {"rows": rows, "sum_ms": total}
+
