@@ -167,6 +167,12 @@ def test_masked_variance_gradient_is_the_closed_form(n, seed, p_valid):
     mean = (f * v[..., None]).sum(1, keepdims=True) / np.maximum(count, 1)
     want = np.where(count >= 2, 2 * (f - mean) * v[..., None] / np.maximum(count, 1), 0.0)
     np.testing.assert_allclose(np.asarray(got), want * cot[:, None], rtol=1e-5, atol=1e-6)
+    # Forward mode too (jvp): the directional derivative along a random tangent.
+    tangent = rng.normal(size=f.shape)
+    _, d_var = jax.jvp(lambda x: masked_variance(x, jnp.asarray(v)),
+                       (jnp.asarray(f, jnp.float32),), (jnp.asarray(tangent, jnp.float32),))
+    np.testing.assert_allclose(np.asarray(d_var), (want * tangent).sum(1), rtol=1e-5,
+                               atol=1e-6)
 
 
 def test_variance_gradients_finite_where_cameras_missing():
