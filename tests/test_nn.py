@@ -265,19 +265,20 @@ def _conv_ranks(layer, x) -> set[int]:
 def test_conv3d_split_lowering_equals_native():
     rng = np.random.default_rng(6)
     x = jnp.asarray(rng.normal(size=(2, 4, 6, 8, 3)), jnp.float32)
-    for stride in (1, 2):
+    # 24 output channels: the split lowering pads its kernel to 32 and slices (layers.py).
+    for out, stride in ((5, 1), (5, 2), (24, 1), (24, 2)):
         layers = {}
         for lowering in ("split", "native"):
-            layers[lowering] = Conv3D(3, 5, 3, stride, nnx.Rngs(stride), use_bias=True,
+            layers[lowering] = Conv3D(3, out, 3, stride, nnx.Rngs(stride), use_bias=True,
                                       lowering=lowering)
-            layers[lowering].bias[...] = jnp.arange(5.0)
+            layers[lowering].bias[...] = jnp.arange(float(out))
         kernel = layers["native"].kernel[...]
         np.testing.assert_array_equal(np.asarray(layers["split"].kernel[...]), np.asarray(kernel))
         split, native = (np.asarray(layers[m](x)) for m in ("split", "native"))
         ref = jax.lax.conv_general_dilated(x, kernel, (stride,) * 3, [(1, 1)] * 3,
                                            dimension_numbers=("NDHWC", "DHWIO", "NDHWC"))
-        assert split.shape == (2, 4 // stride, 6 // stride, 8 // stride, 5)
-        np.testing.assert_allclose(native, np.asarray(ref) + np.arange(5.0), rtol=1e-5,
+        assert split.shape == (2, 4 // stride, 6 // stride, 8 // stride, out)
+        np.testing.assert_allclose(native, np.asarray(ref) + np.arange(float(out)), rtol=1e-5,
                                    atol=1e-5)
         np.testing.assert_allclose(split, native, rtol=1e-5, atol=1e-5)
         grads = {m: nnx.grad(lambda layer: jnp.sum(jnp.sin(layer(x))))(layers[m])
