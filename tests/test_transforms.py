@@ -1750,6 +1750,11 @@ def _leaky_relu(seed):
     return (jnp.asarray(np.where(np.abs(x) < 0.05, 0.5, x), F64),)
 
 
+@case(layers.tap_sum_2d, diff=(0,))
+def _tap_sum_2d(seed):
+    return (jnp.asarray(np.random.default_rng(seed).normal(size=(2, 4, 5, 9)), F64),)
+
+
 @case(layers.kernel_init, call=lambda k: layers.kernel_init(k, (3, 3, 2, 4), F64))
 def _kernel_init(seed):
     return (jax.random.key_data(jax.random.key(seed)),)
