@@ -699,3 +699,33 @@ def test_weight_average_refuses_to_replace_the_bundle_it_compares_and_names_a_mi
     assert not (tmp_path / "data").exists()
     with pytest.raises(ValueError, match=r"^revision 0{40}: no experiments/packs/x/pack.json"):
         wa.extract_pack("0" * 40, "experiments/packs/x", tmp_path / "pack")
+
+
+def test_resolution_floor_oracles_against_hand_built_labels(tmp_path):
+    """The oracles of experiments/resolution_floor.py on labels whose answers are known: a map
+    constant on each 2 x 2 cell is reproduced exactly by the repeated cell means, a map at the
+    candidates by the nearest candidate, and a map with a step inside a cell is not."""
+    from experiments import resolution_floor as RF
+
+    cand = np.array([0.5, 1.0, 2.0, 4.0, 100.0])
+    rng = np.random.default_rng(3)
+    cells = 1.0 / rng.choice(cand, size=(4, 8))
+    blocky = np.repeat(np.repeat(cells, 2, axis=0), 2, axis=1)          # (8, 16)
+    usable = np.ones_like(blocky, bool)
+    maps = RF.oracle_maps(blocky, usable, 2, cand)
+    np.testing.assert_allclose(maps["cell mean, repeated"], blocky, rtol=1e-12)
+    np.testing.assert_allclose(maps["nearest candidate"], blocky, rtol=1e-12)
+    # A step from 1/1 m to 1/2 m between the two columns of every cell: the cell mean is the
+    # average 0.75, 0.25 1/m from either side, wherever the map is repeated.
+    step = np.tile(np.array([1.0, 0.5]), (8, 8))
+    maps = RF.oracle_maps(step, usable, 2, cand)
+    np.testing.assert_allclose(np.abs(maps["cell mean, repeated"] - step), 0.25, rtol=1e-12)
+    # Unusable pixels do not enter a cell's mean.
+    holes = usable.copy()
+    holes[:, 1::2] = False
+    np.testing.assert_allclose(RF.oracle_maps(step, holes, 2, cand)["cell mean, repeated"], 1.0)
+    with pytest.raises(ValueError, match="whole number of 2 x 2 cells"):
+        RF.oracle_maps(step[:7], usable[:7], 2, cand)
+    with pytest.raises(SystemExit) as exc:
+        RF.main(["--help"])
+    assert exc.value.code == 0
