@@ -292,7 +292,10 @@ def place_state(state: Any, mesh: Mesh) -> Any:
 
 
 def place_batch(local_batch: dict, mesh: Mesh) -> dict:
-    """This process's share of a batch (numpy) -> global arrays sharded over 'data'."""
+    """This process's share of a batch (numpy) -> global arrays sharded over 'data'.
+
+    Arrays that already have the step's dtype are placed without a copy, so the result may
+    share memory with ``local_batch``: do not write into it while a step that uses it runs."""
     shard = batch_sharded(mesh)
     out = {}
     for k in BATCH_KEYS + tuple(k for k in EXTRA_KEYS if k in local_batch):
