@@ -314,9 +314,8 @@ def test_tap_sum_matches_numpy_and_its_derivative_is_its_adjoint(k):
     y = rng.normal(size=(2, 5, 7, 1))
     np.testing.assert_allclose(np.asarray(tap_sum_2d(jnp.asarray(z, jnp.float32))),
                                _np_tap_sum(z), rtol=1e-5, atol=1e-5)
-    # The derivative is written separately (a one-hot conv): forward mode equals the map
-    # itself (it is linear) and the gradient of <tap_sum(z), y> is the adjoint applied to y,
-    # checked entry by entry through <A e_i, y>.
+    # A linear map: forward mode equals the map itself, and the gradient of <tap_sum(z), y>
+    # is the adjoint applied to y, checked entry by entry through <A e_i, y>.
     zj = jnp.asarray(z, jnp.float32)
     _, tangent = jax.jvp(tap_sum_2d, (zj,), (zj,))
     np.testing.assert_allclose(np.asarray(tangent), _np_tap_sum(z), rtol=1e-5, atol=1e-5)
@@ -336,9 +335,9 @@ def test_one_output_conv3d_matches_native_in_value_gradients_and_forward_mode():
     """The split lowering's one-output-channel form (the U-Net head) against XLA's own 3-D
     conv: values, input and kernel gradients, and a forward-mode derivative."""
     rng = np.random.default_rng(8)
-    x = jnp.asarray(rng.normal(size=(2, 4, 6, 8, 5)), jnp.float32)
+    x = jnp.asarray(rng.normal(size=(2, 4, 6, 8, 16)), jnp.float32)
     dx = jnp.asarray(rng.normal(size=x.shape), jnp.float32)
-    layers = {m: Conv3D(5, 1, 3, 1, nnx.Rngs(3), use_bias=True, lowering=m)
+    layers = {m: Conv3D(16, 1, 3, 1, nnx.Rngs(3), use_bias=True, lowering=m)
               for m in ("split", "native")}
     for layer in layers.values():
         layer.bias[...] = jnp.asarray([0.25])
@@ -360,8 +359,15 @@ def test_one_output_conv3d_matches_native_in_value_gradients_and_forward_mode():
     tangents = {m: jax.jvp(lambda v, layer=layers[m]: layer(v), (x,), (dx,))[1] for m in layers}
     np.testing.assert_allclose(np.asarray(tangents["split"]), np.asarray(tangents["native"]),
                                rtol=1e-5, atol=1e-5)
-    # Only the head's form: no 2-D conv over stacked depth taps is left in its program.
-    assert _conv_ranks(layers["split"], x) == set()
+    # The head's form: its only 2-D convs are the one-hot tap sums (9 input channels), none
+    # over stacked depth taps (48); below 16 input channels the stacked form stays.
+    jaxpr = jax.make_jaxpr(lambda v: layers["split"](v))(x)
+    assert {e.invars[0].aval.shape[-1] for e in jaxpr.eqns
+            if e.primitive.name == "conv_general_dilated"} == {9}
+    narrow = Conv3D(8, 1, 3, 1, nnx.Rngs(3), lowering="split")
+    jaxpr = jax.make_jaxpr(lambda v: narrow(v))(x[..., :8])
+    assert {e.invars[0].aval.shape[-1] for e in jaxpr.eqns
+            if e.primitive.name == "conv_general_dilated"} == {24}
 
 
 def test_conv3d_lowering_is_seen_by_jit():

@@ -96,27 +96,21 @@ def _use_split(lowering: str) -> bool:
 _SUM_OF_TAPS_MIN_PLANE = 1 << 18
 
 
-@jax.custom_jvp
 def tap_sum_2d(z: Array) -> Array:
     """(N, H, W, k*k) -> (N, H, W, 1): ``y[n, h, w] = sum_t z[n, h + j_t - p, w + l_t - p, t]``,
     tap ``t = j_t k + l_t``, ``p = k // 2``, zero outside the map. With ``z = x @ W`` (a
     kernel's k*k taps as columns) this is the 2-D conv ``x * W`` with one output channel,
     ``same`` padding.
 
-    A linear map written twice: the value as k*k shifted slices summed (one pass over ``z``),
-    its derivative as a fixed 2-D conv with a one-hot kernel. Autodiff's transpose of the
-    slices pads each to the whole of ``z`` and adds k*k such arrays (0.5 s for a batch-8 CPU
-    volume); the transpose of the conv is a conv with the one-hot kernel flipped, one pass.
+    Computed as a fixed 2-D conv with a one-hot kernel, whose autodiff transpose is one pass
+    (written as k*k shifted slices summed, the transpose pads each slice to the whole of ``z``
+    and adds k*k such arrays: 0.5 s for a batch-8 CPU volume; and XLA's CPU backend, with its
+    optimisations off and the classic emitters, evaluated that form inexactly in float64).
     """
     k, p = _tap_kernel(z)
-    n, h, w, _ = z.shape
-    zp = jnp.pad(z, ((0, 0), (p, p), (p, p), (0, 0)))
-    y = None
-    for t in range(k * k):
-        j, m = divmod(t, k)
-        term = zp[:, j:j + h, m:m + w, t]
-        y = term if y is None else y + term
-    return y[..., None]
+    one_hot = jnp.eye(k * k, dtype=z.dtype).reshape(k, k, k * k, 1)
+    return jax.lax.conv_general_dilated(z, one_hot, (1, 1), [(p, p)] * 2,
+                                        dimension_numbers=("NHWC", "HWIO", "NHWC"))
 
 
 def _tap_kernel(z: Array) -> tuple[int, int]:
@@ -126,26 +120,19 @@ def _tap_kernel(z: Array) -> tuple[int, int]:
     return k, k // 2
 
 
-def _one_hot_tap_sum(z: Array) -> Array:
-    k, p = _tap_kernel(z)
-    one_hot = jnp.eye(k * k, dtype=z.dtype).reshape(k, k, k * k, 1)
-    return jax.lax.conv_general_dilated(z, one_hot, (1, 1), [(p, p)] * 2,
-                                        dimension_numbers=("NHWC", "HWIO", "NHWC"))
-
-
-@tap_sum_2d.defjvp
-def _tap_sum_2d_jvp(primals, tangents):
-    (z,), (dz,) = primals, tangents
-    return tap_sum_2d(z), _one_hot_tap_sum(dz)
+# Input channels from which a stride-1 conv with one output channel is computed by
+# :func:`_one_output_conv3d` (batch-8 CPU volume, forward + both gradients: 24 -> 1 52 against
+# 140 ms, 16 -> 1 31 against 57 ms, 8 -> 1 34 against 23 ms).
+_ONE_OUTPUT_MIN_CHANNELS = 16
 
 
 def _one_output_conv3d(x: Array, w: Array) -> Array:
     """Stride-1 3-D conv (B, D, H, W, C) * (k, k, k, C, 1) -> (B, D, H, W, 1), ``same``
     padding: per depth tap one matrix product to the k*k spatial taps' contributions, summed
     over the taps by :func:`tap_sum_2d`. A 3 x 3 x 3, 24 -> 1 conv on a batch-8 CPU-scale
-    volume (the concat presets' U-Net head), forward, input and weight gradients: 37 ms,
-    against 139 ms as a 2-D conv over stacked depth taps, whose weight gradient XLA's CPU
-    backend runs slowly at one output channel; 8 -> 1 the same (24 ms)."""
+    volume (the concat presets' U-Net head), forward, input and weight gradients: 52 ms,
+    against 140 ms as a 2-D conv over stacked depth taps, whose weight gradient XLA's CPU
+    backend runs slowly at one output channel."""
     k, p = w.shape[0], w.shape[0] // 2
     b, d, h, width, c = x.shape
     xp = jnp.pad(x, ((0, 0), (p, p), (0, 0), (0, 0), (0, 0)))
@@ -168,8 +155,9 @@ class Conv3D(nnx.Conv):
       per layer, which is what the exporter needs).
     * ``'split'``: 2-D convolutions over depth-shifted slices with the depth folded into the
       batch. XLA's CPU backend has no fast 3-D convolution; this is 4-10x quicker there,
-      forward and backward. A stride-1 conv with one output channel (the U-Net's head) is
-      matrix products and shifted sums instead (:func:`tap_sum_2d`).
+      forward and backward. A stride-1 conv with one output channel and 16 or more input
+      channels (the concat presets' U-Net head) is matrix products and shifted sums instead
+      (:func:`tap_sum_2d`).
     * ``'auto'``: 'split' when compiling for the CPU backend, 'native' otherwise.
     """
 
@@ -192,7 +180,7 @@ class Conv3D(nnx.Conv):
             return nnx.Conv.__call__(self, x)
         w = self.kernel[...].astype(x.dtype)
         k, s, pad = self.size, self.stride, self.size // 2
-        if w.shape[-1] == 1 and s == 1:      # a head: one output channel
+        if w.shape[-1] == 1 and s == 1 and x.shape[-1] >= _ONE_OUTPUT_MIN_CHANNELS:  # a head
             out = _one_output_conv3d(x, w)
             return out if self.bias is None else out + self.bias[...].astype(out.dtype)
         b, d, h, width, c = x.shape
