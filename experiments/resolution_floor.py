@@ -14,7 +14,7 @@ that floor on the held-out scenes of the bundle's tables, from their labels alon
 
 Each is scored with the paper's metric (MAE of inverse distance in 1/m over the labels in the
 candidate range, ``gijax.evaluate.metrics.paper_sample_metrics``), the same as the tables, and
-shown beside the bundle's and RS-E32's MAE where the weight-averaging table reports them.
+shown beside the bundle's and RS-E32's MAE from the weight-averaging table's JSON.
 The data are the tables' own held-out sets in the work folder, rendered by their recorded
 commands when missing. Writes ``<out>.md``, ``<out>.json`` and, for ``--scale cpu``, the
 ``resolution-floor`` section of ``experiments/RESULTS.md``.
@@ -89,15 +89,16 @@ def floor_of(path: Path, stride: int, candidates) -> dict:
 
 
 def reported_mae() -> dict:
-    """(set -> {'bundle', 'RS-E32'}) MAE from the weight-averaging table in RESULTS.md (the
-    bundle's training list; None where a row is missing)."""
-    import re
-
-    text = (Path(__file__).resolve().parent / "RESULTS.md").read_text()
+    """(set -> {'bundle', 'RS-E32'}) MAE of the bundle (its training list) and RS-E32 from the
+    weight-averaging table's rows (``experiments/results/weight_average_cpu.json``, written by
+    ``experiments/weight_average.py``); empty when that file is missing."""
+    doc = read_json(Path(__file__).resolve().parent / "results" / "weight_average_cpu.json")
     out = {}
-    for test, model, lst, mae in re.findall(
-            r"^\| (\S+) \| (RS-E32|averaged) \| (ev|train) \| ([0-9.]+) \|", text, re.M):
-        out.setdefault(test, {})["RS-E32" if model == "RS-E32" else "bundle"] = float(mae)
+    for row in (doc or {}).get("rows", []):
+        if row["model"] == "RS-E32":
+            out.setdefault(row["test"], {})["RS-E32"] = float(row["mae"])
+        elif row["model"] == "averaged" and row["list"] == "train":
+            out.setdefault(row["test"], {})["bundle"] = float(row["mae"])
     return out
 
 

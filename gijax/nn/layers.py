@@ -179,10 +179,18 @@ class Conv3D(nnx.Conv):
         if not _use_split(self.lowering):
             return nnx.Conv.__call__(self, x)
         w = self.kernel[...].astype(x.dtype)
-        k, s, pad = self.size, self.stride, self.size // 2
-        if w.shape[-1] == 1 and s == 1 and x.shape[-1] >= _ONE_OUTPUT_MIN_CHANNELS:  # a head
+        head = w.shape[-1] == 1 and self.stride == 1
+        if head and x.shape[-1] >= _ONE_OUTPUT_MIN_CHANNELS:
             out = _one_output_conv3d(x, w)
-            return out if self.bias is None else out + self.bias[...].astype(out.dtype)
+        else:
+            out = self._stacked_or_summed_taps(x, w)
+        if self.bias is not None:
+            out = out + self.bias[...].astype(out.dtype)
+        return out
+
+    def _stacked_or_summed_taps(self, x: Array, w: Array) -> Array:
+        """The split lowering of any conv, without its bias."""
+        k, s, pad = self.size, self.stride, self.size // 2
         b, d, h, width, c = x.shape
         d_out = (d + 2 * pad - k) // s + 1
         xp = jnp.pad(x, ((0, 0), (pad, pad), (0, 0), (0, 0), (0, 0)))
@@ -213,10 +221,7 @@ class Conv3D(nnx.Conv):
         else:  # (k, k, k C_in, C_out) kernel, depth-tap-major input channels
             out = conv2d(jnp.concatenate(slices, axis=-1),
                          jnp.moveaxis(w, 0, 2).reshape(k, k, k * c, w.shape[-1]))
-        out = out.reshape(b, d_out, *out.shape[1:])[..., :out_ch]
-        if self.bias is not None:
-            out = out + self.bias[...].astype(out.dtype)
-        return out
+        return out.reshape(b, d_out, *out.shape[1:])[..., :out_ch]
 
 
 def conv(in_ch: int, out_ch: int, kernel: int, ndim: int, stride: int, rngs: nnx.Rngs,
