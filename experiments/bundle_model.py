@@ -37,6 +37,13 @@ continues from it on any machine (the data is re-rendered by its recorded comman
 missing):
 
     python experiments/bundle_model.py --scale cpu --recipe long --design G16VV-cpu --until 4000
+
+The fine-cell training (``--recipe cells``) takes the bundled network of ``--design`` on to a
+cost volume at the output's resolution (``cost_hw`` = ``output_hw``, ``output_stride`` 1: the
+same weights, each cell a quarter of the size) and fine-tunes it on the same mixture
+(:data:`CELLS_RECIPES`), in pieces from its committed pack like the long training:
+
+    python experiments/bundle_model.py --scale cpu --recipe cells --design G16VV-cpu-zncc --until 6000
 """
 
 from __future__ import annotations
@@ -68,6 +75,7 @@ from gijax.bench.report import markdown_grid  # noqa: E402
 
 NAME = "bundle_model"
 LONG_NAME = "long_training"
+CELLS_NAME = "cells_training"
 MODEL = "G16VV"
 RING = "ring5-0.5m"
 TESTS = ("paper-test1", "paper-test2", "paper-test3", RING)
@@ -120,7 +128,18 @@ LONG_RECIPES = {
                   warmup=400, val_every=1000, ckpt_every=250, augment="photometric+body",
                   calibration_deg=0.5, workers=2),
 }
-RECIPE_KINDS = ("finetune", "long")
+# The bundled network of a design fine-tuned with its cost volume at the output's resolution
+# (:func:`cell_overrides`), from the design's bundle, on the same mixture. At the smoke scale
+# it starts from random weights (there is no smoke-sized bundle): a pipeline check.
+CELLS_RECIPES = {
+    "smoke": Recipe(scenes=2, lens_variants=1, layouts=1, steps=4, batch=2, lr=1e-4, warmup=1,
+                    val_every=2, ckpt_every=2, augment="photometric+body", calibration_deg=0.5,
+                    workers=1),
+    "cpu": Recipe(scenes=250, lens_variants=3, layouts=4, steps=6000, batch=8, lr=1e-4,
+                  warmup=200, val_every=250, ckpt_every=100, augment="photometric+body",
+                  calibration_deg=0.5, workers=2),
+}
+RECIPE_KINDS = ("finetune", "long", "cells")
 DEFAULT_DESIGN = "G16VV-cpu"
 
 # Where the bundle is expected to fail, as its provenance and the demo state it.
@@ -220,16 +239,25 @@ def prepare(work: Path, scale: Scale, recipe: Recipe) -> list:
 
 @dataclasses.dataclass(frozen=True)
 class Plan:
-    """Which training of the bundle: the fine-tuning recipe of the bundled design, or the long
-    training of a design (:data:`LONG_RECIPES`) with its resume pack."""
+    """Which training of the bundle: the fine-tuning recipe of the bundled design, the long
+    training of a design (:data:`LONG_RECIPES`) or its fine-cell training
+    (:data:`CELLS_RECIPES`), the last two with their resume packs."""
 
     kind: str = "finetune"             # one of RECIPE_KINDS
     design: str = DEFAULT_DESIGN       # a CPU-scale preset name
-    pack: Optional[Path] = None        # the long training's resume pack folder
+    pack: Optional[Path] = None        # the resume pack folder (long and cells)
 
     @property
     def recipe_table(self) -> dict:
-        return LONG_RECIPES if self.kind == "long" else RECIPES
+        return {"finetune": RECIPES, "long": LONG_RECIPES, "cells": CELLS_RECIPES}[self.kind]
+
+    def recipe(self, scale: Scale) -> Recipe:
+        """The plan's recipe at ``scale``; the fine-cell training starts from the design's
+        bundle (what ``--ckpt`` names it by) except at the smoke scale."""
+        recipe = self.recipe_table[scale.name]
+        if self.kind == "cells" and not scale.tiny:
+            recipe = dataclasses.replace(recipe, init_from=self.design)
+        return recipe
 
 
 FINETUNE = Plan()
@@ -241,16 +269,30 @@ def design_preset(scale: Scale, design: str) -> str:
 
 
 def run_folder(work: Path, scale: Scale, plan: Plan = FINETUNE) -> Path:
-    if plan.kind == "long":
-        return work / "runs" / f"long-{design_preset(scale, plan.design)}"
+    if plan.kind in ("long", "cells"):
+        return work / "runs" / f"{plan.kind}-{design_preset(scale, plan.design)}"
     return work / "runs" / f"bundle-{preset_name(scale, MODEL)}"
 
 
-def long_pack_folder(scale: Scale, design: str, out: Path) -> Path:
-    """Committed packs for the cpu scale; the other scales keep theirs with the output."""
+def long_pack_folder(scale: Scale, design: str, out: Path, kind: str = "long") -> Path:
+    """The resume pack folder of the ``kind`` ('long' or 'cells') training of ``design``:
+    committed under experiments/packs/ at the cpu scale; the other scales keep theirs with the
+    output."""
     if scale.name == "cpu":
-        return Path(__file__).resolve().parent / "packs" / f"long-{design}"
-    return out / "packs" / f"long-{design}"
+        return Path(__file__).resolve().parent / "packs" / f"{kind}-{design}"
+    return out / "packs" / f"{kind}-{design}"
+
+
+def cell_overrides(scale: Scale, design: str) -> dict:
+    """ModelConfig overrides that put ``design``'s cost volume at its output's resolution:
+    ``cost_hw`` = ``output_hw`` (at ``scale``'s shrinking) and ``output_stride`` 1. The
+    network's weights do not depend on the cell size, so a bundle of the design loads as is."""
+    from experiments.scales import design_overrides
+    from gijax.nn.presets import get_preset
+
+    over = design_overrides(scale, design)
+    output_hw = over.get("output_hw", get_preset(design_preset(scale, design)).output_hw)
+    return {**over, "cost_hw": list(output_hw), "output_stride": 1}
 
 
 def train_config(scale: Scale, recipe: Recipe, seed: int, plan: Plan = FINETUNE):
@@ -259,6 +301,8 @@ def train_config(scale: Scale, recipe: Recipe, seed: int, plan: Plan = FINETUNE)
 
     if plan.kind == "long":
         preset, over = design_preset(scale, plan.design), design_overrides(scale, plan.design)
+    elif plan.kind == "cells":
+        preset, over = design_preset(scale, plan.design), cell_overrides(scale, plan.design)
     else:
         preset, over = preset_name(scale, MODEL), model_overrides(scale, MODEL)
     return TrainConfig(preset=preset, model_overrides=over, lr=recipe.lr,
@@ -489,7 +533,7 @@ def write_figures(out: Path, work: Path, scale: Scale, preds: dict, run: Path,
 
 
 def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, prov: dict,
-            data: list, trained: dict, targets: list) -> None:
+            data: list, trained: dict, targets: list, plan: Plan = FINETUNE) -> None:
     """The bundle: best validated checkpoint, config, and beside them PROVENANCE.json (every
     command, seeds, steps, validations, targets), the learning curve and the figures."""
     from gijax.train.bundle import write_bundle
@@ -524,7 +568,9 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"training: {trained.get('trained_steps', recipe.steps)} steps of "
                           f"{recipe.batch} ({kept}), augmentation "
                           f"{recipe.augment}, calibration errors up to "
-                          f"{recipe.calibration_deg:g} deg, starting from {start}"),
+                          f"{recipe.calibration_deg:g} deg, starting from {start}"
+                          + (" with its cost volume at the output's resolution (one cost cell "
+                             "per output pixel)" if plan.kind == "cells" else "")),
            "initialised_from": init,
            "limitations": LIMITATIONS,
            "made_by": prov["command"], "git_revision": prov["git_revision"],
@@ -573,43 +619,50 @@ def main(argv=None) -> int:
     parser = script_parser(__doc__)
     add_common_arguments(parser, NAME)
     parser.add_argument("--previous", default=None,
-                        help="the bundle evaluated beside the new one (default: the packaged "
-                             "G16VV-cpu at the cpu scale, none at other scales; 'none': skip)")
+                        help="the bundle evaluated beside the new one (default at the cpu "
+                             "scale: the packaged bundle of --design for --recipe cells, the "
+                             "packaged G16VV-cpu otherwise; none at other scales; 'none': skip)")
     parser.add_argument("--publish", default=None, metavar="DIR",
                         help="write the new bundle, its provenance and figures to DIR")
     parser.add_argument("--recipe", choices=RECIPE_KINDS, default="finetune",
                         help="'finetune' (default): the bundled design fine-tuned from the "
                              "bundle for the recipe's steps; 'long': --design trained from "
                              "random weights for LONG_RECIPES' steps, in pieces, resuming from "
-                             "its committed pack")
+                             "its committed pack; 'cells': --design's bundle fine-tuned with "
+                             "its cost volume at the output's resolution for CELLS_RECIPES' "
+                             "steps, in pieces like 'long'")
     parser.add_argument("--design", default=DEFAULT_DESIGN, metavar="PRESET",
-                        help=f"the CPU-scale design of --recipe long (default {DEFAULT_DESIGN}; "
-                             f"the designs are compared by experiments/design_comparison.py)")
+                        help=f"the CPU-scale design of --recipe long or cells (default "
+                             f"{DEFAULT_DESIGN}; the designs are compared by "
+                             f"experiments/design_comparison.py)")
     parser.add_argument("--until", type=int, default=None, metavar="STEP",
                         help="train only to this step (a milestone), then evaluate and "
                              "publish what the run has; the same command with a later STEP "
                              "continues")
     args = parser.parse_args(argv)
-    recipes = LONG_RECIPES if args.recipe == "long" else RECIPES
+    recipes = Plan(args.recipe).recipe_table
     if args.scale not in recipes:
         parser.error(f"--scale {args.scale}: the {args.recipe} recipe has scales "
                      f"{sorted(recipes)}")
-    if args.recipe != "long" and args.design != DEFAULT_DESIGN:
-        parser.error("--design chooses the design of --recipe long (the fine-tuning recipe "
-                     f"trains the bundled {DEFAULT_DESIGN})")
+    if args.recipe == "finetune" and args.design != DEFAULT_DESIGN:
+        parser.error("--design chooses the design of --recipe long or cells (the fine-tuning "
+                     f"recipe trains the bundled {DEFAULT_DESIGN})")
     from gijax.nn.presets import get_preset
 
     get_preset(args.design)                       # one line naming the valid presets
     if args.until is not None and args.until < 1:
         parser.error(f"--until must be a positive step; found {args.until}")
-    scale, recipe = SCALES[args.scale], recipes[args.scale]
-    # The long training reports in its own section; the fine-tuning recipe in the bundle's.
-    name = NAME if args.recipe == "finetune" else LONG_NAME
+    scale = SCALES[args.scale]
+    # The long and fine-cell trainings report in their own sections; the fine-tuning recipe in
+    # the bundle's.
+    name = {"finetune": NAME, "long": LONG_NAME, "cells": CELLS_NAME}[args.recipe]
     work, out, results = resolve_paths(args, name)
     if results is not None:
         check_results_section(results, name)
-    plan = (Plan("long", args.design, long_pack_folder(scale, args.design, out))
-            if args.recipe == "long" else FINETUNE)
+    plan = (FINETUNE if args.recipe == "finetune" else
+            Plan(args.recipe, args.design,
+                 long_pack_folder(scale, args.design, out, args.recipe)))
+    recipe = plan.recipe(scale)
     started, durations = time.time(), {}
 
     t0 = time.perf_counter()
@@ -621,7 +674,9 @@ def main(argv=None) -> int:
     durations["training"] = time.perf_counter() - t0
     run = run_folder(work, scale, plan)
     models = {"new bundle": run}
-    previous = args.previous or ("gijax/assets/G16VV-cpu" if scale.name == "cpu" else "none")
+    default_previous = (f"gijax/assets/{plan.design}" if plan.kind == "cells"
+                        else "gijax/assets/G16VV-cpu")
+    previous = args.previous or (default_previous if scale.name == "cpu" else "none")
     if previous != "none":
         models["previous bundle"] = Path(previous)
     t0 = time.perf_counter()
@@ -637,26 +692,32 @@ def main(argv=None) -> int:
     doc = {"table": NAME, "rows": rows, "targets": targets, "training": trained,
            "figures": {k: v.name for k, v in figures.items()}, "provenance": prov}
     target_lines = targets_markdown(targets)
+    how = {"long": "from random weights", "finetune": "fine-tuned",
+           "cells": ("fine-tuned from its bundle with the cost volume at the output's "
+                     "resolution" if recipe.init_from else "from random weights with the cost "
+                     "volume at the output's resolution")}[plan.kind]
     md = "\n\n".join([
-        f"{plan.design if plan.kind == 'long' else MODEL} trained on the mixture "
+        f"{MODEL if plan.kind == 'finetune' else plan.design} trained on the mixture "
         f"({len(mixture_roles(recipe))} datasets of "
         f"{recipe.scenes} scenes: paper-train, paper-train through drawn lenses, random "
         f"layouts through drawn lenses), {trained['trained_steps']} of {recipe.steps} steps of "
-        f"{recipe.batch} ({'from random weights' if plan.kind == 'long' else 'fine-tuned'}), "
-        f"evaluated on "
+        f"{recipe.batch} ({how}), evaluated on "
         f"the tables' held-out scenes (inverse distance, 1/m, the paper's metric definitions; "
         f"'spacing' is the paper's recomputed list, the closed form at the rig's camera "
         f"spacing).", table_markdown(rows), "## Targets", target_lines,
         f"![learning curve]({figures['curve'].name})",
         *(f"![{t}]({figures[t].name})" for t in TESTS),
         "## Provenance", provenance_markdown(prov)])
-    save_table(out, "The bundled model" if name == NAME else "The long training", md, doc)
+    titles = {NAME: "The bundled model", LONG_NAME: "The long training",
+              CELLS_NAME: "The fine-cell training"}
+    save_table(out, titles[name], md, doc)
     if results is not None:
         publish_section(results, name, md, figures.values())
     if args.publish:
-        model = (design_preset(scale, plan.design) if plan.kind == "long"
-                 else preset_name(scale, MODEL))
-        publish(run, Path(args.publish), model, recipe, figures, prov, data, trained, targets)
+        model = (preset_name(scale, MODEL) if plan.kind == "finetune"
+                 else design_preset(scale, plan.design))
+        publish(run, Path(args.publish), model, recipe, figures, prov, data, trained, targets,
+                plan)
     return 0
 
 

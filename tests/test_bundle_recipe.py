@@ -154,3 +154,43 @@ def test_the_bundled_step_is_the_checkpoint_the_bundle_takes(tmp_path):
     (run / "best" / "9000").mkdir(parents=True)
     (run / "checkpoints" / "9250").mkdir()
     assert B.bundled_step(run) == 9000
+
+
+def test_the_cells_recipe_fine_tunes_the_designs_bundle_at_one_cell_per_output_pixel(tmp_path):
+    """``--recipe cells``: the design's preset with the cost volume at the output's size
+    (``cost_hw`` = ``output_hw``, stride 1; at the smoke scale on the shrunk network), started
+    from the design's bundle at the cpu scale (random weights at the smoke scale, which has no
+    bundle), its own run and committed pack folders, and the recorded command carrying all of it
+    so that the same command resumes."""
+    from gijax.nn.presets import get_preset
+
+    cpu, smoke = scales.SCALES["cpu"], scales.SCALES["smoke"]
+    design = "G16VV-cpu-zncc"
+    plan = B.Plan("cells", design, B.long_pack_folder(cpu, design, tmp_path, "cells"))
+    assert plan.pack == Path(B.__file__).resolve().parent / "packs" / f"cells-{design}"
+    recipe = plan.recipe(cpu)
+    assert recipe.init_from == design and recipe.steps == 6000 and recipe.lr == 1e-4
+    cfg = B.train_config(cpu, recipe, 0, plan)
+    base = get_preset(design)
+    assert base.cost_hw == (16, 64) and base.output_stride == 2      # the design: 2 x 2 cells
+    assert cfg.preset == design
+    assert cfg.model_overrides == {"cost_hw": [32, 128], "output_stride": 1}
+    mc = cfg.model_config()
+    assert tuple(mc.cost_hw) == tuple(mc.output_hw) == (32, 128)
+    argv = [str(a) for a in B.train_argv(tmp_path, cpu, recipe, 0, [], plan)]
+    assert argv[argv.index("--out") + 1] == str(tmp_path / "runs" / f"cells-{design}")
+    assert argv[argv.index("--pack") + 1] == str(plan.pack)
+    assert argv[argv.index("--init-from") + 1] == design
+    overrides = [argv[i + 1] for i, a in enumerate(argv) if a == "--override"]
+    assert overrides == ["cost_hw=[32,128]", "output_stride=1"]
+    for flag, value in (("--steps", "6000"), ("--batch", "8"), ("--lr", "0.0001"),
+                        ("--warmup-steps", "200"), ("--ckpt-every", "100"),
+                        ("--val-every", "250")):
+        assert argv[argv.index(flag) + 1] == value
+    tiny_plan = B.Plan("cells", design, B.long_pack_folder(smoke, design, tmp_path, "cells"))
+    assert tiny_plan.pack == tmp_path / "packs" / f"cells-{design}"
+    tiny = tiny_plan.recipe(smoke)
+    assert tiny.init_from is None
+    small = B.train_config(smoke, tiny, 0, tiny_plan).model_config()
+    assert tuple(small.cost_hw) == tuple(small.output_hw) and small.output_stride == 1
+    assert small.unet_base < base.unet_base                          # the smoke shrinking
