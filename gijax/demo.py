@@ -217,10 +217,11 @@ def verdict(table: dict, baseline: str) -> str:
 
 
 def model_note(model, name: str) -> str:
-    """What the model was trained on and where it is expected to fail, from its provenance
-    (bundles record both; a run folder is named as it is)."""
+    """What the model was trained on, how it compared with classical stereo on held-out scenes
+    and where it is expected to fail, from its provenance (bundles record them; a run folder is
+    named as it is)."""
     from gijax.store import resolve_model_path
-    from gijax.store.assets import limitations, trained_on
+    from gijax.store.assets import held_out_comparison, limitations, trained_on
     from gijax.store.bundles import is_bundle, read_provenance
 
     path = resolve_model_path(model)
@@ -228,6 +229,7 @@ def model_note(model, name: str) -> str:
         return f"model {name}: the training run {path}"
     prov = read_provenance(path)
     return (f"model {name}: trained on {trained_on(prov)}\n"
+            f"compared with classical stereo: {held_out_comparison(prov)}\n"
             f"expected to fail on: {limitations(prov)}")
 
 

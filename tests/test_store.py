@@ -146,6 +146,11 @@ def test_models_command_lists_preset_parameters_and_training_data(capsys):
     assert m["parameters"] == sum(x.size for x in _params_of(eager)) > 100_000
     # What the bundle states of its training, listed as it states it.
     assert m["trained_on"] == prov["trained_on"] and "rendered" in m["trained_on"]
+    # How it compares: its recorded paper-test1 figure beside RS-E32's, as recorded.
+    first = prov["targets"][0]
+    assert first["test"] == "paper-test1"
+    assert (f"paper-test1 {first['numbers']['model']:.4f} vs RS-E32 "
+            f"{first['numbers']['RS-E32']:.4f}") in m["compared"]
     assert main(["models"]) == 0
     text = capsys.readouterr().out
     assert "G16VV-cpu" in text and f"{m['parameters']:,}" in text
@@ -175,23 +180,36 @@ def test_every_ckpt_names_the_bundled_models_when_nothing_matches(tmp_path, caps
 
 
 def test_demo_and_models_say_what_a_bundle_was_trained_on_and_where_it_fails(tmp_path):
-    """A bundle's stated training data and limits are what the demo prints under its table;
-    older provenance without them falls back to its data block and 'not stated'; a run folder
-    is named as such."""
+    """A bundle's stated training data, held-out comparison and limits are what the demo prints
+    under its table; older provenance without them falls back to its data block, 'not
+    recorded' and 'not stated'; a target without a model and a baseline figure is left out; a
+    run folder is named as such."""
     from gijax.demo import model_note
-    from gijax.store.assets import limitations, trained_on
+    from gijax.store.assets import held_out_comparison, limitations, trained_on
 
     stated = {"trained_on": "4,800 rendered scenes on 8 rigs", "limitations": "real images",
-              "data": {"train_samples": 400, "rig": "paper-train"}}
+              "data": {"train_samples": 400, "rig": "paper-train"},
+              "targets": [
+                  {"test": "paper-test1", "target": "MAE <= 0.75 x RS-E32", "status": "MISSED",
+                   "numbers": {"model": 0.02204, "RS-E32": 0.02338, "ratio": 0.9426}},
+                  {"test": "ring", "target": "spacing MAE < RS-E32", "status": "MET",
+                   "numbers": {"model_spacing": 0.0228, "model_train": 0.0235,
+                               "RS-E32": 0.03616}},
+                  {"test": "broken", "numbers": {"ratio": 1.0}}]}
     bundle = tmp_path / "b"
     bundle.mkdir()
     (bundle / "weights.npz").write_bytes(b"")
     (bundle / "PROVENANCE.json").write_text(json.dumps(stated))
-    assert model_note(bundle, "G16VV-cpu") == ("model G16VV-cpu: trained on 4,800 rendered "
-                                               "scenes on 8 rigs\nexpected to fail on: real "
-                                               "images")
+    assert model_note(bundle, "G16VV-cpu") == (
+        "model G16VV-cpu: trained on 4,800 rendered scenes on 8 rigs\n"
+        "compared with classical stereo: held-out MAE (1/m, the paper's definition): "
+        "paper-test1 0.0220 vs RS-E32 0.0234 (MAE <= 0.75 x RS-E32: missed); "
+        "ring 0.0228 vs RS-E32 0.0362 (spacing MAE < RS-E32: met)\n"
+        "expected to fail on: real images")
     old = {"data": {"train_samples": 400, "rig": "paper-train", "style": "mixed"}}
     assert trained_on(old) == "400 rendered mixed scenes on paper-train"
     assert limitations(old) == "not stated" and limitations({"limitations": 3}) == "not stated"
+    assert held_out_comparison(old) == "not recorded"
+    assert held_out_comparison({"targets": [{"numbers": {"model": 0.1}}]}) == "not recorded"
     (tmp_path / "run").mkdir()
     assert model_note(tmp_path / "run", "E8-cpu") == f"model E8-cpu: the training run {tmp_path / 'run'}"

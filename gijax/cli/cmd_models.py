@@ -12,7 +12,8 @@ def register(subparsers) -> None:
         "models", help=HELP,
         description=(
             "List the inference bundles shipped inside gijax (gijax/assets): name, preset, "
-            "parameter count and what each was trained on (from its PROVENANCE.json). The model "
+            "parameter count, what each was trained on, how it compares with classical stereo on "
+            "held-out scenes and where it is expected to fail (from its PROVENANCE.json). The model "
             "option of predict, eval, export and demo ('gijax predict --ckpt NAME') accepts "
             "such a name as well as a path; a path that exists wins."))
     p.add_argument("--json", action="store_true", help="print one JSON list instead of text")
@@ -25,7 +26,8 @@ def run(args) -> int:
     models = [describe_bundled(name) for name in bundled_names()]
     if args.json:
         print(json.dumps([{"name": m.name, "preset": m.preset, "parameters": m.parameters,
-                           "trained_on": m.trained_on, "limitations": m.limitations,
+                           "trained_on": m.trained_on, "compared": m.compared,
+                           "limitations": m.limitations,
                            "path": str(m.path),
                            "candidates": m.candidates} for m in models], indent=2))
         return 0
@@ -37,6 +39,7 @@ def run(args) -> int:
     for m in models:
         print(f"{m.name:<{width}}  {m.preset:<14}{m.parameters:>12,}  {m.trained_on}")
     for m in models:
+        print(f"{m.name}: {m.compared}")
         print(f"{m.name}: expected to fail on {m.limitations}")
     print(f"use one with --ckpt NAME, e.g. gijax predict --ckpt {models[0].name} ...")
     return 0

@@ -56,6 +56,10 @@ class BundledModel:
     def limitations(self) -> str:
         return limitations(self.provenance)
 
+    @property
+    def compared(self) -> str:
+        return held_out_comparison(self.provenance)
+
 
 def parameter_count(config) -> int:
     """Trainable parameters of a network of ``config``, counted on its abstract shapes (no
@@ -92,6 +96,28 @@ def trained_on(provenance: dict) -> str:
     if provenance.get("source"):
         return f"weights converted from {Path(str(provenance['source'])).name}"
     return "not recorded (no PROVENANCE.json)"
+
+
+def held_out_comparison(provenance: dict) -> str:
+    """One line from a bundle's provenance: its held-out MAE beside the classical baseline's on
+    each test rig its targets name, and whether each target was met ('not recorded' when the
+    provenance has no targets). The model's figure is the one its target judges (the training
+    list's, else the recomputed list's)."""
+    parts = []
+    for target in provenance.get("targets") or []:
+        if not isinstance(target, dict) or not isinstance(target.get("numbers"), dict):
+            continue
+        nums = target["numbers"]
+        ours = nums.get("model", nums.get("model_spacing"))
+        baseline = next(((k, v) for k, v in nums.items() if str(k).startswith("RS-")), None)
+        if not isinstance(ours, (int, float)) or baseline is None:
+            continue
+        status = str(target.get("status", "")).lower()
+        parts.append(f"{target.get('test', '?')} {ours:.4f} vs {baseline[0]} {baseline[1]:.4f}"
+                     + (f" ({target['target']}: {status})" if target.get("target") else ""))
+    if not parts:
+        return "not recorded"
+    return "held-out MAE (1/m, the paper's definition): " + "; ".join(parts)
 
 
 def limitations(provenance: dict) -> str:
