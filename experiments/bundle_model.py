@@ -104,40 +104,43 @@ class Recipe:
     init_from: Optional[str] = None
 
 
+# The mixture and how it is seen in training (augmentation, calibration errors, loader
+# workers): one per scale, shared by every recipe, so that a run can continue another's model.
+MIXTURES = {
+    "smoke": dict(scenes=2, lens_variants=1, layouts=1, augment="photometric+body",
+                  calibration_deg=0.5, workers=1),
+    # 8 datasets x 250 scenes, about 45 minutes to render on 2 cores.
+    "cpu": dict(scenes=250, lens_variants=3, layouts=4, augment="photometric+body",
+                calibration_deg=0.5, workers=2),
+}
+
 RECIPES = {
-    "smoke": Recipe(scenes=2, lens_variants=1, layouts=1, steps=3, batch=2, lr=4e-4, warmup=1,
-                    val_every=0, ckpt_every=0, augment="photometric+body", calibration_deg=0.5,
-                    workers=1),
-    # 8 datasets x 250 scenes (about 45 minutes to render on 2 cores); 600 steps of 8 (2.4
-    # passes, each image augmented anew): 4,800 samples in about 25 minutes, fine-tuning the
-    # bundled model of the revision it runs at. A run resumes within one work folder; a
-    # training longer than one sitting is a chain of such runs, each published before the
-    # next, and the provenance names the weights each one started from.
-    "cpu": Recipe(scenes=250, lens_variants=3, layouts=4, steps=600, batch=8, lr=4e-4,
-                  warmup=60, val_every=300, ckpt_every=150, augment="photometric+body",
-                  calibration_deg=0.5, workers=2, init_from="G16VV-cpu"),
+    "smoke": Recipe(**MIXTURES["smoke"], steps=3, batch=2, lr=4e-4, warmup=1, val_every=0,
+                    ckpt_every=0),
+    # 600 steps of 8 (2.4 passes, each image augmented anew): 4,800 samples in about 25
+    # minutes, fine-tuning the bundled model of the revision it runs at. A run resumes within
+    # one work folder; a training longer than one sitting is a chain of such runs, each
+    # published before the next, and the provenance names the weights each one started from.
+    "cpu": Recipe(**MIXTURES["cpu"], steps=600, batch=8, lr=4e-4, warmup=60, val_every=300,
+                  ckpt_every=150, init_from="G16VV-cpu"),
 }
 
 # The long training of a design from random weights: a cosine schedule over a horizon longer
 # than any one sitting, trained in pieces (--until) that each resume from the committed pack.
 LONG_RECIPES = {
-    "smoke": Recipe(scenes=2, lens_variants=1, layouts=1, steps=4, batch=2, lr=4e-4, warmup=1,
-                    val_every=2, ckpt_every=2, augment="photometric+body", calibration_deg=0.5,
-                    workers=1),
-    "cpu": Recipe(scenes=250, lens_variants=3, layouts=4, steps=40000, batch=8, lr=4e-4,
-                  warmup=400, val_every=1000, ckpt_every=250, augment="photometric+body",
-                  calibration_deg=0.5, workers=2),
+    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=4e-4, warmup=1, val_every=2,
+                    ckpt_every=2),
+    "cpu": Recipe(**MIXTURES["cpu"], steps=40000, batch=8, lr=4e-4, warmup=400,
+                  val_every=1000, ckpt_every=250),
 }
 # The bundled network of a design fine-tuned with its cost volume at the output's resolution
 # (:func:`cell_overrides`), from the design's bundle, on the same mixture. At the smoke scale
 # it starts from random weights (there is no smoke-sized bundle): a pipeline check.
 CELLS_RECIPES = {
-    "smoke": Recipe(scenes=2, lens_variants=1, layouts=1, steps=4, batch=2, lr=1e-4, warmup=1,
-                    val_every=2, ckpt_every=2, augment="photometric+body", calibration_deg=0.5,
-                    workers=1),
-    "cpu": Recipe(scenes=250, lens_variants=3, layouts=4, steps=6000, batch=8, lr=1e-4,
-                  warmup=200, val_every=250, ckpt_every=100, augment="photometric+body",
-                  calibration_deg=0.5, workers=2),
+    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
+                    ckpt_every=2),
+    "cpu": Recipe(**MIXTURES["cpu"], steps=6000, batch=8, lr=1e-4, warmup=200, val_every=250,
+                  ckpt_every=100),
 }
 RECIPE_KINDS = ("finetune", "long", "cells")
 DEFAULT_DESIGN = "G16VV-cpu"
