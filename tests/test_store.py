@@ -211,5 +211,7 @@ def test_demo_and_models_say_what_a_bundle_was_trained_on_and_where_it_fails(tmp
     assert limitations(old) == "not stated" and limitations({"limitations": 3}) == "not stated"
     assert held_out_comparison(old) == "not recorded"
     assert held_out_comparison({"targets": [{"numbers": {"model": 0.1}}]}) == "not recorded"
+    assert held_out_comparison({"targets": [{"numbers": {"model": 0.1, "RS-E32": "n/a"}}]}) \
+        == "not recorded"
     (tmp_path / "run").mkdir()
     assert model_note(tmp_path / "run", "E8-cpu") == f"model E8-cpu: the training run {tmp_path / 'run'}"

@@ -109,7 +109,8 @@ def held_out_comparison(provenance: dict) -> str:
             continue
         nums = target["numbers"]
         ours = nums.get("model", nums.get("model_spacing"))
-        baseline = next(((k, v) for k, v in nums.items() if str(k).startswith("RS-")), None)
+        baseline = next(((k, v) for k, v in nums.items()
+                         if str(k).startswith("RS-") and isinstance(v, (int, float))), None)
         if not isinstance(ours, (int, float)) or baseline is None:
             continue
         status = str(target.get("status", "")).lower()
