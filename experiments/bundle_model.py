@@ -277,7 +277,7 @@ def run_folder(work: Path, scale: Scale, plan: Plan = FINETUNE) -> Path:
     return work / "runs" / f"bundle-{preset_name(scale, MODEL)}"
 
 
-def long_pack_folder(scale: Scale, design: str, out: Path, kind: str = "long") -> Path:
+def pack_folder(scale: Scale, design: str, out: Path, kind: str = "long") -> Path:
     """The resume pack folder of the ``kind`` ('long' or 'cells') training of ``design``:
     committed under experiments/packs/ at the cpu scale; the other scales keep theirs with the
     output."""
@@ -664,7 +664,7 @@ def main(argv=None) -> int:
         check_results_section(results, name)
     plan = (FINETUNE if args.recipe == "finetune" else
             Plan(args.recipe, args.design,
-                 long_pack_folder(scale, args.design, out, args.recipe)))
+                 pack_folder(scale, args.design, out, args.recipe)))
     recipe = plan.recipe(scale)
     started, durations = time.time(), {}
 

@@ -121,7 +121,7 @@ def test_the_long_recipe_trains_its_design_from_random_weights_with_a_committed_
     """``--recipe long``: the design's own preset (smoke overrides at the smoke scale), random
     weights, the pack folder under experiments/packs/ at the cpu scale (committed) and beside
     the output elsewhere, and the pack in the recorded command so that the command resumes."""
-    plan = B.Plan("long", "G16VV-cpu-zncc", B.long_pack_folder(scales.SCALES["cpu"],
+    plan = B.Plan("long", "G16VV-cpu-zncc", B.pack_folder(scales.SCALES["cpu"],
                                                                "G16VV-cpu-zncc", tmp_path))
     assert plan.pack == Path(B.__file__).resolve().parent / "packs" / "long-G16VV-cpu-zncc"
     recipe = B.LONG_RECIPES["cpu"]
@@ -135,7 +135,7 @@ def test_the_long_recipe_trains_its_design_from_random_weights_with_a_committed_
                            B.Plan("long", "G16VV-cpu-fine", None))
     # The fine design keeps its cost volume at the output's size when shrunk.
     assert smoke.model_overrides["cost_hw"] == smoke.model_overrides["output_hw"]
-    assert B.long_pack_folder(scales.SCALES["smoke"], "x", tmp_path) == tmp_path / "packs" / "long-x"
+    assert B.pack_folder(scales.SCALES["smoke"], "x", tmp_path) == tmp_path / "packs" / "long-x"
     # The fine-tuning recipe is unchanged: the bundle's preset from the bundle, no pack.
     fine = B.train_config(scales.SCALES["cpu"], B.RECIPES["cpu"], 0)
     assert fine.preset == "G16VV-cpu" and fine.init_from == "G16VV-cpu" and fine.pack is None
@@ -166,7 +166,7 @@ def test_the_cells_recipe_fine_tunes_the_designs_bundle_at_one_cell_per_output_p
 
     cpu, smoke = scales.SCALES["cpu"], scales.SCALES["smoke"]
     design = "G16VV-cpu-zncc"
-    plan = B.Plan("cells", design, B.long_pack_folder(cpu, design, tmp_path, "cells"))
+    plan = B.Plan("cells", design, B.pack_folder(cpu, design, tmp_path, "cells"))
     assert plan.pack == Path(B.__file__).resolve().parent / "packs" / f"cells-{design}"
     recipe = plan.recipe(cpu)
     assert recipe.init_from == design and recipe.steps == 6000 and recipe.lr == 1e-4
@@ -187,7 +187,7 @@ def test_the_cells_recipe_fine_tunes_the_designs_bundle_at_one_cell_per_output_p
                         ("--warmup-steps", "200"), ("--ckpt-every", "100"),
                         ("--val-every", "250")):
         assert argv[argv.index(flag) + 1] == value
-    tiny_plan = B.Plan("cells", design, B.long_pack_folder(smoke, design, tmp_path, "cells"))
+    tiny_plan = B.Plan("cells", design, B.pack_folder(smoke, design, tmp_path, "cells"))
     assert tiny_plan.pack == tmp_path / "packs" / f"cells-{design}"
     tiny = tiny_plan.recipe(smoke)
     assert tiny.init_from is None
