@@ -348,7 +348,7 @@ def ensure_trained(work: Path, scale: Scale, recipe: Recipe, seed: int, data: li
     step under ``trained_steps``)."""
     run = run_folder(work, scale, plan)
     command = gijax_command(train_argv(work, scale, recipe, seed, data, plan))
-    init = initial_weights(run, recipe)
+    init = initial_weights(run, recipe, plan.pack)
     model = MODEL if plan.kind == "finetune" else plan.design
     trained = train_run(run, command, train_config(scale, recipe, seed, plan),
                         [d["path"] for d in data if d["role"].startswith("mix-")],
@@ -358,24 +358,51 @@ def ensure_trained(work: Path, scale: Scale, recipe: Recipe, seed: int, data: li
     return {**trained, "init": init, "trained_steps": last_logged_step(run)}
 
 
-def initial_weights(run: Path, recipe: Recipe) -> Optional[dict]:
+def initial_weights(run: Path, recipe: Recipe, pack: Optional[Path] = None) -> Optional[dict]:
     """What the run started from: ``recipe.init_from``, the hash of its weights and the source
     revision, recorded beside the run folder when the run starts (a bundled model's weights
-    change when a new bundle is published), read back when it resumes. None: random weights."""
+    change when a new bundle is published), read back when it resumes. A run that resumes from
+    its committed ``pack`` on a machine without the record takes the revision from the pack's
+    first ``started`` log record, and the weights' hash from today's bundle (republished only
+    once the run has finished). None: random weights."""
     from experiments.provenance import revision
     from experiments.reporting import read_json, write_json
     from gijax.store import resolve_model_path
+    from gijax.store.packs import read_pack
 
     if not recipe.init_from:
         return None
     path = run.with_name(run.name + ".init.json")
     record = read_json(path)
-    if record is None or not (run / "checkpoints").is_dir():
+    resuming = (run / "checkpoints").is_dir() or (pack is not None and read_pack(pack) is not None)
+    if record is None and resuming and pack is not None:
+        first = _first_started(pack / "metrics.jsonl")
+        if first is not None:
+            source = resolve_model_path(recipe.init_from)
+            record = {"model": recipe.init_from, "weights_sha256_12": weights_id(source),
+                      "git_revision": first["git"]["commit"]
+                      + ("+dirty" if first["git"].get("dirty") else ""),
+                      "recovered_from": "the pack's first started record"}
+            write_json(path, record)
+    if record is None or not resuming:
         source = resolve_model_path(recipe.init_from)
         record = {"model": recipe.init_from, "weights_sha256_12": weights_id(source),
                   "git_revision": revision()}
         write_json(path, record)
     return record
+
+
+def _first_started(log: Path) -> Optional[dict]:
+    """The first ``started`` record of a training log, or None."""
+    if not log.is_file():
+        return None
+    with open(log) as f:
+        for line in f:
+            if '"started"' in line:
+                rec = json.loads(line)
+                if rec.get("event") == "started":
+                    return rec
+    return None
 
 
 # --------------------------------------------------------------------------- evaluation
