@@ -368,23 +368,25 @@ def initial_weights(run: Path, recipe: Recipe, pack: Optional[Path] = None) -> O
     from experiments.provenance import revision
     from experiments.reporting import read_json, write_json
     from gijax.store import resolve_model_path
-    from gijax.store.packs import read_pack
+    from gijax.store.configs import METRICS_FILE
+    from gijax.store.packs import PACK_FILE
 
     if not recipe.init_from:
         return None
     path = run.with_name(run.name + ".init.json")
     record = read_json(path)
-    resuming = (run / "checkpoints").is_dir() or (pack is not None and read_pack(pack) is not None)
-    if record is None and resuming and pack is not None:
-        first = _first_started(pack / "metrics.jsonl")
-        if first is not None:
-            source = resolve_model_path(recipe.init_from)
-            record = {"model": recipe.init_from, "weights_sha256_12": weights_id(source),
-                      "git_revision": first["git"]["commit"]
-                      + ("+dirty" if first["git"].get("dirty") else ""),
-                      "recovered_from": "the pack's first started record"}
-            write_json(path, record)
-    if record is None or not resuming:
+    # The training command checks the pack itself when it resumes from it.
+    from_pack = pack is not None and (pack / PACK_FILE).is_file()
+    resuming = from_pack or (run / "checkpoints").is_dir()
+    first = _first_started(pack / METRICS_FILE) if record is None and from_pack else None
+    if first is not None:
+        record = {"model": recipe.init_from,
+                  "weights_sha256_12": weights_id(resolve_model_path(recipe.init_from)),
+                  "git_revision": first["git"]["commit"] + ("+dirty" if first["git"].get("dirty")
+                                                            else ""),
+                  "recovered_from": "the pack's first started record"}
+        write_json(path, record)
+    elif record is None or not resuming:
         source = resolve_model_path(recipe.init_from)
         record = {"model": recipe.init_from, "weights_sha256_12": weights_id(source),
                   "git_revision": revision()}

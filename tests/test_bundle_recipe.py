@@ -194,3 +194,37 @@ def test_the_cells_recipe_fine_tunes_the_designs_bundle_at_one_cell_per_output_p
     small = B.train_config(smoke, tiny, 0, tiny_plan).model_config()
     assert tuple(small.cost_hw) == tuple(small.output_hw) and small.output_stride == 1
     assert small.unet_base < base.unet_base                          # the smoke shrinking
+
+
+def test_a_run_resuming_from_its_pack_on_a_new_machine_keeps_its_start_record(tmp_path):
+    """The start record (initial weights, revision) of a fine-tune lives beside its run
+    folder, which a new machine lacks; resuming there from the committed pack takes the
+    revision from the pack's first ``started`` log record instead of today's, and keeps the
+    record from then on. A run started afresh (no pack, no checkpoints) records today's."""
+    import json
+
+    from experiments.evaluation import weights_id
+    from experiments.provenance import revision
+    from gijax.store import resolve_model_path
+
+    cpu, design = scales.SCALES["cpu"], "G16VV-cpu-zncc"
+    pack = tmp_path / "pack"
+    pack.mkdir()
+    (pack / "pack.json").write_text("{}")
+    started = {"step": 0, "event": "started", "git": {"commit": "0123abc" * 5 + "01234",
+                                                     "dirty": True}}
+    (pack / "metrics.jsonl").write_text(json.dumps({"step": 0, "event": "note"}) + "\n"
+                                        + json.dumps(started) + "\n"
+                                        + json.dumps({"step": 1, "loss": 0.1}) + "\n")
+    recipe = B.Plan("cells", design, pack).recipe(cpu)
+    run = tmp_path / "runs" / f"cells-{design}"
+    bundle_id = weights_id(resolve_model_path(design))
+    record = B.initial_weights(run, recipe, pack)
+    assert record["git_revision"] == started["git"]["commit"] + "+dirty"
+    assert record["weights_sha256_12"] == bundle_id and record["model"] == design
+    saved = run.with_name(run.name + ".init.json")
+    assert json.loads(saved.read_text()) == record
+    (pack / "metrics.jsonl").write_text("")           # the record, once written, is kept
+    assert B.initial_weights(run, recipe, pack) == record
+    fresh = B.initial_weights(tmp_path / "runs" / "other", recipe, None)
+    assert fresh["git_revision"] == revision() and fresh["weights_sha256_12"] == bundle_id
