@@ -144,6 +144,8 @@ CELLS_RECIPES = {
 }
 RECIPE_KINDS = ("finetune", "long", "cells")
 DEFAULT_DESIGN = "G16VV-cpu"
+# The start record of a run trained in pieces, inside its pack (see initial_weights).
+INIT_FILE = "init.json"
 
 # Where the bundle is expected to fail, as its provenance and the demo state it.
 LIMITATIONS = ("rigs unlike its mixture (cameras not facing one way, more than 4 cameras, or "
@@ -360,11 +362,13 @@ def ensure_trained(work: Path, scale: Scale, recipe: Recipe, seed: int, data: li
 
 def initial_weights(run: Path, recipe: Recipe, pack: Optional[Path] = None) -> Optional[dict]:
     """What the run started from: ``recipe.init_from``, the hash of its weights and the source
-    revision, recorded beside the run folder when the run starts (a bundled model's weights
-    change when a new bundle is published), read back when it resumes. A run that resumes from
-    its committed ``pack`` on a machine without the record takes the revision from the pack's
-    first ``started`` log record, and the weights' hash from today's bundle (republished only
-    once the run has finished). None: random weights."""
+    revision, recorded when the run starts (a bundled model's weights change when a new bundle
+    is published, milestones included) and read back when it resumes. A run trained in pieces
+    keeps the record in its ``pack`` (:data:`INIT_FILE`), which is committed with the pack and
+    so reaches every machine; a run without a pack keeps it beside its run folder. A pack
+    from before the record moved there takes the revision from the pack's first ``started``
+    log record, and the weights' hash from the record beside the run folder when this machine
+    has it, else from today's bundle. None: random weights."""
     from experiments.provenance import revision
     from experiments.reporting import read_json, write_json
     from gijax.store import resolve_model_path
@@ -373,15 +377,18 @@ def initial_weights(run: Path, recipe: Recipe, pack: Optional[Path] = None) -> O
 
     if not recipe.init_from:
         return None
-    path = run.with_name(run.name + ".init.json")
+    beside_run = run.with_name(run.name + ".init.json")
+    path = pack / INIT_FILE if pack is not None else beside_run
     record = read_json(path)
     # The training command checks the pack itself when it resumes from it.
     from_pack = pack is not None and (pack / PACK_FILE).is_file()
     resuming = from_pack or (run / "checkpoints").is_dir()
     first = _first_started(pack / METRICS_FILE) if record is None and from_pack else None
     if first is not None:
+        local = read_json(beside_run) or {}
         record = {"model": recipe.init_from,
-                  "weights_sha256_12": weights_id(resolve_model_path(recipe.init_from)),
+                  "weights_sha256_12": (local.get("weights_sha256_12")
+                                        or weights_id(resolve_model_path(recipe.init_from))),
                   "git_revision": first["git"]["commit"] + ("+dirty" if first["git"].get("dirty")
                                                             else ""),
                   "recovered_from": "the pack's first started record"}

@@ -197,10 +197,12 @@ def test_the_cells_recipe_fine_tunes_the_designs_bundle_at_one_cell_per_output_p
 
 
 def test_a_run_resuming_from_its_pack_on_a_new_machine_keeps_its_start_record(tmp_path):
-    """The start record (initial weights, revision) of a fine-tune lives beside its run
-    folder, which a new machine lacks; resuming there from the committed pack takes the
-    revision from the pack's first ``started`` log record instead of today's, and keeps the
-    record from then on. A run started afresh (no pack, no checkpoints) records today's."""
+    """The start record (initial weights, revision) of a run trained in pieces lives in its
+    committed pack, so a milestone bundle published mid-run (which replaces the weights the run
+    started from) cannot change it. A pack from before the record lived there takes the
+    revision from the pack's first ``started`` log record (not today's) and the weights' hash
+    from the record beside the run folder when the machine still has it, and keeps the record
+    in the pack from then on. A run without a pack records today's beside its run folder."""
     import json
 
     from experiments.evaluation import weights_id
@@ -222,9 +224,20 @@ def test_a_run_resuming_from_its_pack_on_a_new_machine_keeps_its_start_record(tm
     record = B.initial_weights(run, recipe, pack)
     assert record["git_revision"] == started["git"]["commit"] + "+dirty"
     assert record["weights_sha256_12"] == bundle_id and record["model"] == design
-    saved = run.with_name(run.name + ".init.json")
+    saved = pack / B.INIT_FILE
     assert json.loads(saved.read_text()) == record
     (pack / "metrics.jsonl").write_text("")           # the record, once written, is kept
     assert B.initial_weights(run, recipe, pack) == record
+    # A machine that still has the record beside its run folder keeps that weights' hash
+    # (today's bundle may be a milestone published since the run started).
+    saved.unlink()
+    (pack / "metrics.jsonl").write_text(json.dumps(started) + "\n")
+    run.parent.mkdir(parents=True)
+    run.with_name(run.name + ".init.json").write_text(json.dumps(
+        {"model": design, "weights_sha256_12": "feedc0ffee00", "git_revision": "x"}))
+    older = B.initial_weights(run, recipe, pack)
+    assert older["weights_sha256_12"] == "feedc0ffee00"
+    assert older["git_revision"] == started["git"]["commit"] + "+dirty"
     fresh = B.initial_weights(tmp_path / "runs" / "other", recipe, None)
     assert fresh["git_revision"] == revision() and fresh["weights_sha256_12"] == bundle_id
+    assert (tmp_path / "runs" / "other.init.json").is_file()
