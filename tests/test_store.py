@@ -215,3 +215,17 @@ def test_demo_and_models_say_what_a_bundle_was_trained_on_and_where_it_fails(tmp
         == "not recorded"
     (tmp_path / "run").mkdir()
     assert model_note(tmp_path / "run", "E8-cpu") == f"model E8-cpu: the training run {tmp_path / 'run'}"
+
+
+def test_a_bundle_that_departs_from_its_preset_says_where():
+    """A fine-tune may change the network's settings (the cost volume's grid, say) while its
+    configuration keeps the preset's name; ``gijax models`` names the settings that differ,
+    and none for a configuration equal to its preset or named after no preset."""
+    from gijax.nn.presets import get_preset
+    from gijax.store.assets import preset_changes
+
+    base = get_preset("G16VV-cpu-zncc")
+    assert preset_changes(base) == {}
+    finer = dataclasses.replace(base, cost_hw=(32, 128), output_stride=1)
+    assert preset_changes(finer) == {"cost_hw": (32, 128), "output_stride": 1}
+    assert preset_changes(dataclasses.replace(finer, name="my-own-net")) == {}

@@ -11,7 +11,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "models", help=HELP,
         description=(
-            "List the inference bundles shipped inside gijax (gijax/assets): name, preset, "
+            "List the inference bundles shipped inside gijax (gijax/assets): name, preset (and "
+            "the network settings in which a bundle departs from it), "
             "parameter count, what each was trained on, how it compares with classical stereo on "
             "held-out scenes and where it is expected to fail (from its PROVENANCE.json). The model "
             "option of predict, eval, export and demo ('gijax predict --ckpt NAME') accepts "
@@ -25,7 +26,10 @@ def run(args) -> int:
 
     models = [describe_bundled(name) for name in bundled_names()]
     if args.json:
-        print(json.dumps([{"name": m.name, "preset": m.preset, "parameters": m.parameters,
+        print(json.dumps([{"name": m.name, "preset": m.preset,
+                           "changed_from_preset": {k: list(v) if isinstance(v, tuple) else v
+                                                   for k, v in m.changed.items()},
+                           "parameters": m.parameters,
                            "trained_on": m.trained_on, "compared": m.compared,
                            "limitations": m.limitations,
                            "path": str(m.path),
@@ -39,6 +43,10 @@ def run(args) -> int:
     for m in models:
         print(f"{m.name:<{width}}  {m.preset:<14}{m.parameters:>12,}  {m.trained_on}")
     for m in models:
+        if m.changed:
+            print(f"{m.name}: the {m.preset} network with " + ", ".join(
+                f"{k}={'x'.join(map(str, v)) if isinstance(v, tuple) else v}"
+                for k, v in m.changed.items()))
         print(f"{m.name}: {m.compared}")
         print(f"{m.name}: expected to fail on {m.limitations}")
     print(f"use one with --ckpt NAME, e.g. gijax predict --ckpt {models[0].name} ...")

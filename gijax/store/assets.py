@@ -51,6 +51,8 @@ class BundledModel:
     candidates: list
     trained_on: str
     provenance: dict
+    # The network settings in which the bundle departs from its named preset ({} when none).
+    changed: dict = dataclasses.field(default_factory=dict)
 
     @property
     def limitations(self) -> str:
@@ -72,6 +74,19 @@ def parameter_count(config) -> int:
 
     abstract = nnx.eval_shape(lambda: create_model(config, 0))
     return int(sum(np.prod(x.shape) for x in jax.tree.leaves(nnx.state(abstract, nnx.Param))))
+
+
+def preset_changes(config) -> dict:
+    """The fields of a network ``config`` that differ from the preset it is named after, as
+    ``{field: value}`` (a fine-tune can change the cost volume's size, for example); {} when it
+    matches the preset or its name is not a preset."""
+    from gijax.nn.presets import PRESETS
+
+    preset = PRESETS.get(config.name)
+    if preset is None:
+        return {}
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+            if getattr(config, f.name) != getattr(preset, f.name)}
 
 
 def trained_on(provenance: dict) -> str:
@@ -140,4 +155,5 @@ def describe_bundled(name: str) -> BundledModel:
     prov = read_provenance(path)
     return BundledModel(name=name, path=path, preset=run.model.name,
                         parameters=parameter_count(run.model), candidates=list(run.candidates),
-                        trained_on=trained_on(prov), provenance=prov)
+                        trained_on=trained_on(prov), provenance=prov,
+                        changed=preset_changes(run.model))
