@@ -728,6 +728,14 @@ def main(argv=None) -> int:
                              data)
     prov["recipe"] = {**dataclasses.asdict(recipe), "kind": plan.kind, "design": plan.design,
                       "until": args.until}
+    # The scale's summary describes the tables' per-model training; this script trains by its
+    # recipe, so the provenance states that instead.
+    tests = sorted({d["samples"] for d in data if d["role"] in TESTS})
+    prov["scale_summary"] = (
+        f"images at {scale.image_scale:g} of the rigs' size, {scale.pano_hw[0]} x "
+        f"{scale.pano_hw[1]} output; {len(mixture_roles(recipe))} mixture datasets of "
+        f"{recipe.scenes} scenes, {recipe.steps} steps of batch {recipe.batch}; "
+        f"{'/'.join(map(str, tests))} test scenes per rig")
     doc = {"table": NAME, "rows": rows, "targets": targets, "training": trained,
            "figures": {k: v.name for k, v in figures.items()}, "provenance": prov}
     target_lines = targets_markdown(targets)
