@@ -111,6 +111,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
     out_dir = Path(out_dir)
     seed = int(np.random.SeedSequence().entropy % (2**31)) if seed is None else int(seed)
     net, config, train_cand = load_model(model)
+    title = model_title(model, config.name)
     # The paper's rigs look along one axis: the model's own panorama, the hemisphere around it.
     pano = model_panorama(config)
 
@@ -137,14 +138,14 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
             samples.append(sample)
             bar.update(1)
             for label, cand in cands.items():
-                bar.set_postfix_str(f"{name} scene {j + 1}/{scenes}: {config.name} ({label})")
+                bar.set_postfix_str(f"{name} scene {j + 1}/{scenes}: {title} ({label})")
                 learned = LearnedPredictor(net, cand, pano, colours=False)
                 # The rig at its calibrated size, as every predictor takes it: the images
                 # (rendered at the model's size) are then used as they are. The scaled rig
                 # would read as a calibration of that size and have them scaled again.
                 inv, secs, metrics, res = _evaluate(learned, rig, sample, cand)
-                per_scene.setdefault(f"{config.name} {label}", []).append(
-                    MethodResult(f"{config.name} {label}", inv, secs, metrics))
+                per_scene.setdefault(f"{title} {label}", []).append(
+                    MethodResult(f"{title} {label}", inv, secs, metrics))
                 if cloud is None:
                     cloud = (res, small)
                 bar.update(1)
@@ -172,7 +173,7 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
                                               "model": str(model), "table": table})
     print(format_table(table, seed, scenes))
     print(verdict(table, baseline))
-    print(model_note(model, config.name))
+    print(model_note(model, title))
     print(f"wrote {out_dir / 'demo.png'}, {out_dir / 'points.ply'}, {out_dir / 'demo.json'}")
     return table
 
@@ -217,6 +218,16 @@ def verdict(table: dict, baseline: str) -> str:
     return "verdict: " + "\nverdict: ".join(lines)
 
 
+def model_title(model, preset: str) -> str:
+    """What the demo calls the model: a bundled model by its bundle name (two bundles can share
+    a preset, e.g. one with a finer cost volume), anything else by its preset."""
+    from gijax.store import resolve_model_path
+    from gijax.store.assets import ASSETS
+
+    path = resolve_model_path(model)
+    return path.name if path.resolve().parent == ASSETS.resolve() else preset
+
+
 def model_note(model, name: str) -> str:
     """What the model was trained on, how it compared with classical stereo on held-out scenes
     and where it is expected to fail, from its provenance (bundles record them; a run folder is
@@ -235,14 +246,15 @@ def model_note(model, name: str) -> str:
 
 
 def format_table(table: dict, seed: int, scenes: int) -> str:
+    width = max([40] + [len(name) for methods in table.values() for name in methods])
     lines = [f"seed {seed}, {scenes} scene(s) per rig; inverse distance metrics in 1/m as the "
              f"paper defines them, mean over the scenes (lower MAE/RMSE is better)",
-             f"{'rig':<12} {'method':<40} {'MAE':>7} {'min-max':>13} {'RMSE':>7} {'SSIM':>6} "
-             f"{'cover':>6} {'time s':>7}"]
+             f"{'rig':<12} {'method':<{width}} {'MAE':>7} {'min-max':>13} {'RMSE':>7} "
+             f"{'SSIM':>6} {'cover':>6} {'time s':>7}"]
     for rig, methods in table.items():
         for name, m in methods.items():
             spread = f"{min(m['mae_per_scene']):.3f}-{max(m['mae_per_scene']):.3f}"
-            lines.append(f"{rig:<12} {name:<40} {m['mae']:7.4f} {spread:>13} {m['rmse']:7.4f} "
+            lines.append(f"{rig:<12} {name:<{width}} {m['mae']:7.4f} {spread:>13} {m['rmse']:7.4f} "
                          f"{m['ssim']:6.3f} {m['coverage']:6.1%} {m['seconds']:7.2f}")
     lines.append("min-max: the per-scene MAE range; time: median wall seconds per scene after "
                  "the first (the first call compiles)")

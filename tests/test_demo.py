@@ -93,7 +93,7 @@ def test_the_figure_keeps_the_panorama_aspect_and_marks_missing_pixels(tmp_path)
 
 
 def test_every_method_gets_the_calibrated_rig_and_the_images_at_the_models_size(
-        tmp_path, monkeypatch):
+        tmp_path, monkeypatch, capsys):
     """Predictors take a rig at its calibrated size and scale the images to the model's size
     from it; the demo renders at the model's size, so it must hand over the calibrated rig (a
     rig already scaled would have the learned model's images scaled a second time). The
@@ -135,3 +135,15 @@ def test_every_method_gets_the_calibrated_rig_and_the_images_at_the_models_size(
             assert rig.cameras[0].width == calibrated.cameras[0].width, kind
             assert shape[2] == made.cameras[0].width, kind
     assert {kind for kind, _, _ in given} == {"LearnedPredictor", "RtssPredictor"}
+    # A bundled model is called by its bundle name (two bundles may share a preset), and the
+    # printed table stays in columns however long the names.
+    import json
+
+    methods = json.loads((tmp_path / "demo" / "demo.json").read_text())["table"]["paper-train"]
+    assert f"{demo.DEFAULT_MODEL} paper's GI at camera spacing" in methods
+    lines = capsys.readouterr().out.splitlines()
+    header = next(line for line in lines if line.startswith("rig "))
+    end = header.index(" MAE") + 4
+    rows = [line for line in lines if line.startswith(demo.DEMO_RIGS)]
+    assert len(rows) == 8 and all(row[end - 7:end] == " 0.0100" for row in rows), rows
+    assert demo.model_title(tmp_path, "E8-cpu") == "E8-cpu"     # a run folder: its preset
