@@ -44,6 +44,9 @@ same weights, each cell a quarter of the size) and fine-tunes it on the same mix
 (:data:`CELLS_RECIPES`), in pieces from its committed pack like the long training:
 
     python experiments/bundle_model.py --scale cpu --recipe cells --design G16VV-cpu-zncc --until 6000
+
+The bundled ``G16VV-cpu-zncc-fine`` is its milestone, published with ``--publish
+gijax/assets/G16VV-cpu-zncc-fine`` (the coarse bundle it starts from stays as it is).
 """
 
 from __future__ import annotations
