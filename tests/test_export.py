@@ -4,6 +4,7 @@ checkpoint checks, and the TensorRT build/run logic against a stand-in ``tensorr
 import dataclasses
 import json
 import types
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -551,3 +552,94 @@ def test_trt_build_strongly_typed_follows_the_file_and_refuses_contradictions(se
                  "--fp16"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--stronglyTyped and --fp16 contradict" in err[0]
+
+
+# --------------------------------------------------------------- jax2onnx's graph lookups
+
+def _lookup_graph():
+    """An ONNX-IR graph with an input, an initializer, two nodes in it, one removed and one
+    never added: every case the converter's lookups answer."""
+    import onnx_ir as ir
+
+    x = ir.Value(name="x")
+    w = ir.Value(name="w", const_value=ir.tensor(np.ones(2, np.float32)))
+    a = ir.Node("", "Relu", [x])
+    b = ir.Node("", "Add", [a.outputs[0], w])
+    gone = ir.Node("", "Neg", [x])
+    loose = ir.Node("", "Abs", [x])
+    graph = ir.Graph([x], [b.outputs[0]], nodes=[a, b, gone], initializers=[w])
+    graph.remove(gone)
+    # A value named like a node's output but not that output (the name match of the original).
+    twin = ir.Value(name=a.outputs[0].name)
+    values = [x, w, a.outputs[0], b.outputs[0], gone.outputs[0], loose.outputs[0], twin, None]
+    return graph, [a, b], values
+
+
+def test_fast_converter_lookups_answer_as_the_originals():
+    """Each patched lookup gives the original's answer on every kind of value: inputs,
+    initializers, outputs of nodes in the graph, of a removed node, of a node never added,
+    a same-named twin, and None; the node lists include a stale one that still holds the
+    removed node (as an optimisation pass's snapshot does)."""
+    from jax2onnx.converter import optimizer_graph_utils, output_binding
+
+    from gijax.export.converter_lookups import fast_lookups
+
+    graph, kept, values = _lookup_graph()
+    ctx = types.SimpleNamespace(builder=types.SimpleNamespace(
+        nodes=graph, inputs=list(graph.inputs), initializers=list(graph.initializers.values())))
+    removed = values[4].producer()
+    node_lists = [list(graph), kept + [removed], tuple(kept), []]
+    original_connected = output_binding._value_is_graph_connected
+    original_producer = optimizer_graph_utils._producer_node
+    expected_connected = [original_connected(ctx, v) for v in values if v is not None]
+    expected_producer = [[original_producer(n, v) for v in values] for n in node_lists]
+    assert expected_connected == [True, True, True, True, False, False, True]
+    assert expected_producer[1][4] is removed          # the stale list still finds it
+    with fast_lookups() as patched:
+        assert patched
+        assert output_binding._value_is_graph_connected is not original_connected
+        got_connected = [output_binding._value_is_graph_connected(ctx, v)
+                         for v in values if v is not None]
+        got_producer = [[optimizer_graph_utils._producer_node(n, v) for v in values]
+                        for n in node_lists]
+    assert got_connected == expected_connected
+    assert all(g is e for gs, es in zip(got_producer, expected_producer)
+               for g, e in zip(gs, es))
+    assert output_binding._value_is_graph_connected is original_connected
+    assert optimizer_graph_utils._producer_node is original_producer
+
+
+def test_fast_converter_lookups_restore_on_error_and_stand_aside_for_other_internals(
+        monkeypatch):
+    from jax2onnx.converter import ir_optimizations, optimizer_graph_utils
+
+    from gijax.export import converter_lookups
+
+    original = optimizer_graph_utils._producer_node
+    with pytest.raises(RuntimeError, match="inside"):
+        with converter_lookups.fast_lookups():
+            assert ir_optimizations._producer_node is not original
+            raise RuntimeError("inside")
+    assert ir_optimizations._producer_node is original
+
+    def other(nodes, value, extra=None):       # a jax2onnx whose signature changed
+        return None
+
+    monkeypatch.setattr(optimizer_graph_utils, "_producer_node", other)
+    with converter_lookups.fast_lookups() as patched:
+        assert not patched
+        assert optimizer_graph_utils._producer_node is other
+        assert ir_optimizations._producer_node is original
+
+
+def test_export_with_fast_lookups_writes_the_same_bytes(setup, tmp_path, monkeypatch):
+    """The baked export of the module's network, once more with the converter's own lookups,
+    is byte for byte the file the patched converter wrote."""
+    import contextlib
+
+    from gijax.export import onnx_export
+
+    s = setup
+    monkeypatch.setattr(onnx_export, "fast_lookups", lambda: contextlib.nullcontext(False))
+    plain = export_onnx(s["model"], s["rig"], CAND, tmp_path / "plain.onnx")
+    assert (Path(plain.path).read_bytes() == Path(s["baked"].path).read_bytes())

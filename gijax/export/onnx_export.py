@@ -44,6 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import nnx
 
+from gijax.export.converter_lookups import fast_lookups
 from gijax.export.graph import intrinsics_layout, rig_from_arrays
 from gijax.export.precision import (DEFAULT_CALIBRATION_SCENES, PRECISIONS, plan_fp16,
                                     quantize_int8)
@@ -206,7 +207,7 @@ def export_onnx(model: OmniStereoNet, rig: Rig, candidates, path: str | os.PathL
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # per-constant serialisation notes are not actionable
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), fast_lookups():
             warnings.simplefilter("ignore", DeprecationWarning)  # jax2onnx's flax accessors
             proto = to_onnx(fn, list(specs.values()), opset=opset, model_name=f"gijax_{cfg.name}",
                             input_names=names, output_names=list(OUTPUTS))
