@@ -54,12 +54,13 @@ def pytest_unconfigure(config):
 # measured), in decreasing order. Under ``--dist loadfile`` (pyproject.toml) files go to the
 # workers in collection order, so handing these out first keeps one worker from starting a long
 # file when the other is nearly done.
-LONGEST_FIRST = ("test_transforms", "test_train", "test_model", "test_faults", "test_export",
-                 "test_train_faults", "test_precision", "test_train_parallel",
-                 "test_network_adaptation", "test_rtss", "test_nn", "test_release_parity",
-                 "test_reliability", "test_design", "test_learned_candidates",
-                 "test_panorama_frame", "test_matching", "test_render", "test_augmentations",
-                 "test_real_rig_edges", "test_bundle", "test_candidates", "test_cameras")
+LONGEST_FIRST = ("test_transforms", "test_train", "test_export", "test_calibrate", "test_model",
+                 "test_nn", "test_train_parallel", "test_train_faults", "test_precision",
+                 "test_network_adaptation", "test_rtss", "test_learned_candidates",
+                 "test_reliability", "test_release_parity", "test_cameras", "test_faults",
+                 "test_render", "test_panorama_frame", "test_matching", "test_design",
+                 "test_evaluate", "test_candidates", "test_bundle", "test_augmentations",
+                 "test_store", "test_predict_methods", "test_real_rig_edges", "test_lens_draw")
 # The end-to-end runs come after every library test: they run the library through the
 # experiment scripts, the tutorial notebook and the demo, so a library defect is reported by
 # its own test first. The experiments' smoke runs (the longest file) are handed out first, so
