@@ -75,14 +75,15 @@ def main(argv=None) -> int:
         for preset in args.presets:
             for rig_as_input in (False, True):
                 rows.append(bench(preset, rig_as_input, args.rounds, folder))
-    head = (f"{'preset':14s} {'rig':6s} {'jax2onnx s':>10s} {'gijax s':>8s} {'speed-up':>8s} "
-            f"{'same bytes':>10s}")
-    print(head)
-    print("-" * len(head))
-    for r in rows:
-        print(f"{r['preset']:14s} {'input' if r['rig_as_input'] else 'baked':6s} "
-              f"{r['median_s']['jax2onnx']:10.2f} {r['median_s']['gijax']:8.2f} "
-              f"{r['speedup']:7.2f}x {str(r['same_bytes']):>10s}")
+    from gijax.bench.report import text_table
+
+    table = [{"preset": r["preset"], "rig": "input" if r["rig_as_input"] else "baked",
+              "plain": r["median_s"]["jax2onnx"], "fast": r["median_s"]["gijax"],
+              "speedup": r["speedup"], "same": "yes" if r["same_bytes"] else "NO"} for r in rows]
+    print(text_table(table, [("preset", "preset"), ("rig", "rig"),
+                             ("jax2onnx's lookups s", "plain", ".2f"),
+                             ("gijax's s", "fast", ".2f"), ("speed-up", "speedup", ".2f"),
+                             ("same bytes", "same")]))
     from gijax.bench.machine import machine_info
     from gijax.io.paths import write_json_atomic
 
