@@ -259,12 +259,14 @@ class OmniStereoNet(nnx.Module):
 
     @_stage
     def regress(self, logits: Array, candidates: Array) -> dict:
-        """Logits (B, D, h, w) and candidates (D,) metres -> the soft-argmax outputs at
-        ``output_stride`` x the cost grid (whichever panorama it covers): ``inv_distance``,
+        """Logits (B, D, h, w) and candidates (D,) metres -> the regressed outputs at
+        ``output_stride`` x the cost grid (whichever panorama it covers; the estimate the
+        configuration's ``estimate`` names, :mod:`gijax.nn.regressor`): ``inv_distance``,
         ``distance``, ``prob``, ``entropy`` and the ``logits`` themselves."""
         k = self.config.output_stride
         h, w = logits.shape[2:4]
-        out = dict(regress(logits, candidates.astype(logits.dtype), (k * h, k * w)))
+        out = dict(regress(logits, candidates.astype(logits.dtype), (k * h, k * w),
+                           self.config.estimate, self.config.mode_window))
         out["logits"] = logits
         return out
 
@@ -313,6 +315,33 @@ def create_model(name_or_config: str | ModelConfig, seed: int = 0) -> OmniStereo
         raise ValueError(f"expected a preset name or a ModelConfig; found "
                          f"{type(name_or_config).__name__}")
     return OmniStereoNet(config, nnx.Rngs(seed))
+
+
+def reconfigured(model: OmniStereoNet, **changes) -> OmniStereoNet:
+    """``model``'s weights and BatchNorm statistics under its configuration with ``changes``,
+    which may only touch fields that change no weight
+    (:data:`gijax.nn.presets.WEIGHTLESS_FIELDS`: e.g. ``estimate='mode'`` reads a network by
+    its sub-pixel mode); a new module in eval mode, ``model`` unchanged. Nothing is initialised
+    (the new module's structure is built abstractly, then takes ``model``'s state)."""
+    from gijax.nn.presets import WEIGHTLESS_FIELDS
+
+    other = sorted(set(changes) - WEIGHTLESS_FIELDS)
+    if other:
+        raise ValueError(f"reconfigured: {', '.join(other)} change(s) the weights; only "
+                         f"{', '.join(sorted(WEIGHTLESS_FIELDS))} may change")
+    config = dataclasses.replace(model.config, **changes)
+    new = nnx.eval_shape(lambda: OmniStereoNet(config, nnx.Rngs(0)))
+    nnx.update(new, nnx.state(model))
+    new.eval()
+    return new
+
+
+def with_estimate(model: OmniStereoNet, estimate: str | None) -> OmniStereoNet:
+    """``model`` read by ``estimate`` ('mean' or 'mode', :mod:`gijax.nn.regressor`; None or its
+    own: ``model`` itself), as ``--estimate`` asks (:func:`reconfigured`)."""
+    if estimate is None or estimate == model.config.estimate:
+        return model
+    return reconfigured(model, estimate=estimate)
 
 
 def count_parameters(config: ModelConfig | str) -> dict[str, int]:

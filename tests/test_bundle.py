@@ -12,7 +12,7 @@ from gijax.model import create_model
 from gijax.nn.presets import get_preset
 from gijax.store import is_bundle, load_bundle, load_model
 from gijax.store.bundles import WEIGHTS_FILE
-from gijax.train.bundle import save_bundle
+from gijax.train.bundle import save_bundle, write_bundle
 from gijax.train.config import TrainConfig, save_run_config
 
 TINY = dict(feature_channels=4, feature_blocks=(1, 1), unet_in=4, unet_base=4,
@@ -46,6 +46,34 @@ def test_bundle_round_trip_is_exact(tmp_path):
     assert flat_w.shape == flat_g.shape and flat_w.size > 1000
     np.testing.assert_array_equal(np.asarray(flat_w), np.asarray(flat_g))
     assert json.loads((out / "PROVENANCE.json").read_text()) == {"command": "test"}
+
+
+def test_a_bundle_written_with_another_estimate_reads_the_same_weights_so(tmp_path):
+    """``estimate='mode'`` writes the run's network read by its sub-pixel mode: the same
+    weights byte for byte, the configuration's estimate replaced (nothing else), the loaded
+    model reads by the mode (a prediction of the network's own probabilities checked against
+    the mode computed from them); a wrong estimate is refused before anything is written."""
+    from gijax.nn.regressor import estimate_inverse
+
+    cfg, config_file = _run_config(tmp_path)
+    model = create_model(cfg.model_config(), seed=3)
+    plain = save_bundle(model, config_file, tmp_path / "plain")
+    mode = save_bundle(model, config_file, tmp_path / "mode", estimate="mode")
+    assert (plain / WEIGHTS_FILE).read_bytes() == (mode / WEIGHTS_FILE).read_bytes()
+    a, b = (json.loads((p / "config.json").read_text()) for p in (plain, mode))
+    assert b["model"].pop("estimate") == "mode" and a["model"].pop("estimate", "mean") == "mean"
+    assert a == b
+    loaded, mc, cand = load_model(mode)
+    assert mc == dataclasses.replace(cfg.model_config(), estimate="mode")
+    logits = jnp.asarray(np.random.default_rng(0).normal(size=(1, 16, 8, 32)) * 3, jnp.float32)
+    out = loaded.regress(logits, jnp.asarray(cand, jnp.float32))
+    want = estimate_inverse(out["prob"], 1.0 / jnp.asarray(cand, jnp.float32), "mode", 2)
+    np.testing.assert_allclose(np.asarray(out["inv_distance"]), np.asarray(want), rtol=1e-6)
+    mean = estimate_inverse(out["prob"], 1.0 / jnp.asarray(cand, jnp.float32), "mean")
+    assert np.abs(np.asarray(out["inv_distance"]) - np.asarray(mean)).max() > 1e-3
+    with pytest.raises(ValueError, match="estimate"):
+        write_bundle(tmp_path / "run", tmp_path / "never", estimate="median")
+    assert not (tmp_path / "never").exists()
 
 
 def test_bundle_of_another_network_is_refused(tmp_path):

@@ -138,9 +138,12 @@ def test_rig_as_input_second_rig_equals_fresh_baked_export(setup):
 
 
 def test_matching_cost_model_exports_and_matches_jax(tmp_path):
-    """The matching-cost channel (grey sampling, cell ZNCC) exports at opset 17 with sums only
-    (ReduceMean / ReduceMin would need axes attributes), matches JAX and stays TensorRT-clean."""
-    cfg = dataclasses.replace(TINY, name="tiny-zncc", matching_cost="zncc", matching_samples=2)
+    """The bundled design's parts: the matching-cost channel (grey sampling, cell ZNCC), the
+    cost volume at the output's resolution and the sub-pixel mode export at opset 17 with sums
+    only (ReduceMean / ReduceMin would need axes attributes; the mode's window is a maximum and
+    comparisons, no ArgMax), match JAX and stay TensorRT-clean."""
+    cfg = dataclasses.replace(TINY, name="tiny-zncc", matching_cost="zncc", matching_samples=2,
+                              output_stride=1, output_hw=TINY.cost_hw, estimate="mode")
     rig = load_rig("paper-train")
     model = create_model(cfg, seed=1)
     images, masks = rendered_inputs(cfg, rig, seed=3)
@@ -152,6 +155,11 @@ def test_matching_cost_model_exports_and_matches_jax(tmp_path):
     report = check_model(exported.path)
     assert report.ok(), report.table()
     assert report.op_counts.get("ReduceMean", 0) == 0
+    assert report.op_counts.get("ArgMax", 0) == 0
+    # The same weights read by the mean differ: what was exported is the mode.
+    mean = jax_reference(create_model(dataclasses.replace(cfg, estimate="mean"), seed=1), rig,
+                         images, masks, CAND)
+    assert np.abs(out["inv_distance"] - mean["inv_distance"][0]).max() > 1e-2
 
 
 def test_concat_model_refuses_other_camera_count():

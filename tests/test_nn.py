@@ -476,6 +476,93 @@ def test_regress_matches_numpy_reference():
         regress(jnp.zeros((1, 8, 3, 5)), jnp.asarray(cand[:4]), (6, 10))
 
 
+def _np_mode(prob, inv_cand, window):
+    """The sub-pixel mode by arg-max (an independent reference: the library builds the window
+    from a maximum and shifts): per pixel, the expectation over the candidates within
+    ``window`` places of the most probable one."""
+    b, d, h, w = prob.shape
+    out = np.empty((b, h, w))
+    for i in range(b):
+        for y in range(h):
+            for x in range(w):
+                p = prob[i, :, y, x]
+                a = int(np.argmax(p))
+                lo, hi = max(a - window, 0), min(a + window, d - 1) + 1
+                out[i, y, x] = np.dot(p[lo:hi], inv_cand[lo:hi]) / p[lo:hi].sum()
+    return out
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), window=st.integers(0, 9), scale=st.floats(0.5, 6.0))
+def test_mode_estimate_matches_an_argmax_reference(seed, window, scale):
+    """Random logits (ties have probability zero): the mode estimate equals the arg-max
+    reference, lies between the window's candidates, and a window as wide as the list gives
+    the mean."""
+    from gijax.nn.regressor import estimate_inverse
+
+    rng = np.random.default_rng(seed)
+    logits = rng.normal(size=(2, 8, 2, 3)) * scale
+    prob = np.exp(logits - logits.max(1, keepdims=True))
+    prob /= prob.sum(1, keepdims=True)
+    inv_cand = 1.0 / np.geomspace(0.5, 100.0, 8)
+    with jax.enable_x64(True):
+        got = np.asarray(estimate_inverse(jnp.asarray(prob), jnp.asarray(inv_cand), "mode",
+                                          window))
+        mean = np.asarray(estimate_inverse(jnp.asarray(prob), jnp.asarray(inv_cand), "mean"))
+    np.testing.assert_allclose(got, _np_mode(prob, inv_cand, window), rtol=1e-12)
+    np.testing.assert_allclose(mean, np.einsum("bdhw,d->bhw", prob, inv_cand), rtol=1e-12)
+    if window >= 7:
+        np.testing.assert_allclose(got, mean, rtol=1e-12)
+    if window == 0:
+        np.testing.assert_allclose(got, inv_cand[prob.argmax(1)], rtol=1e-12)
+
+
+def test_mode_estimate_takes_the_stronger_surface_at_an_edge():
+    """Two surfaces in one pixel (0.55 of the mass around candidate 2, 0.45 around candidate
+    12): the mean lands between them, the mode within a candidate of the stronger one; a tie
+    widens the window over both neighbourhoods; the regressor reads the configured estimate
+    and a gradient flows to the logits inside the window only."""
+    from gijax.nn.regressor import estimate_inverse, mode_window_mask
+
+    cand = np.geomspace(0.5, 100.0, 16)
+    inv_cand = 1.0 / cand
+    p = np.full(16, 1e-4)
+    p[[1, 2, 3]] = [0.1, 0.35, 0.1]
+    p[[11, 12, 13]] = [0.1, 0.25, 0.1]
+    p /= p.sum()
+    prob = p.reshape(1, 16, 1, 1)
+    mean = float(np.dot(p, inv_cand))
+    mode = float(estimate_inverse(jnp.asarray(prob, jnp.float32),
+                                  jnp.asarray(inv_cand, jnp.float32), "mode", 2)[0, 0, 0])
+    expected = np.dot(p[0:5], inv_cand[0:5]) / p[0:5].sum()
+    assert mode == pytest.approx(expected, rel=1e-5)
+    assert inv_cand[3] < mode < inv_cand[1]                   # on the near surface
+    assert inv_cand[10] < mean < inv_cand[3]                  # between the two
+    tie = np.zeros(16)
+    tie[[4, 12]] = 0.5
+    mask = np.asarray(mode_window_mask(jnp.asarray(tie.reshape(1, 16, 1, 1)), 1))[0, :, 0, 0]
+    assert np.flatnonzero(mask).tolist() == [3, 4, 5, 11, 12, 13]
+    logits = jnp.asarray(np.log(prob), jnp.float32)
+    out = regress(logits, jnp.asarray(cand, jnp.float32), (1, 1), "mode", 2)
+    assert float(out["inv_distance"][0, 0, 0]) == pytest.approx(expected, rel=1e-4)
+    np.testing.assert_allclose(np.asarray(out["prob"])[:, :, 0, 0], prob[:, :, 0, 0],
+                               rtol=1e-5)
+    grad = np.asarray(jax.grad(lambda z: regress(z, jnp.asarray(cand, jnp.float32), (1, 1),
+                                                   "mode", 2)["inv_distance"].sum())(logits))
+    # The renormalised window does not depend on the logits outside it (up to rounding of the
+    # softmax's shared normaliser).
+    # Inside it, d mode / d z_i = p_i (q_i - mode) / sum_W p (softmax logits z).
+    closed = p[0:5] * (inv_cand[0:5] - expected) / p[0:5].sum()
+    np.testing.assert_allclose(grad[0, :5, 0, 0], closed, rtol=2e-3, atol=1e-8)
+    assert np.abs(grad[0, 5:]).max() < 1e-6 * np.abs(grad[0, :5]).max()
+    with pytest.raises(ValueError, match="estimate"):
+        estimate_inverse(jnp.asarray(prob), jnp.asarray(inv_cand), "median")
+    with pytest.raises(ValueError, match="mode_window"):
+        dataclasses.replace(get_preset("G16VV-cpu"), estimate="mode", mode_window=-1)
+    with pytest.raises(ValueError, match="estimate"):
+        dataclasses.replace(get_preset("G16VV-cpu"), estimate="median")
+
+
 # ----------------------------------------------------------------------------- spherical conv
 
 

@@ -78,6 +78,15 @@ def test_rtss_refuses_a_model_and_net_needs_one(ring_data, tmp_path, capsys):
     rc = main(["predict", "--method", "rtss", "--ckpt", "G16VV-cpu", "--rig", "paper-train",
                "--images", str(img), str(img), str(img), "--out", str(tmp_path / "o")])
     assert rc == 1 and "drop --ckpt" in capsys.readouterr().err
+    # The estimate reads a learned model's probabilities: RTSS has none, and an ONNX file runs
+    # the one it was exported with.
+    rc = main(["predict", "--method", "rtss", "--estimate", "mode", "--rig", "paper-train",
+               "--images", str(img), str(img), str(img), "--out", str(tmp_path / "o")])
+    assert rc == 1 and "drop --estimate" in capsys.readouterr().err
+    rc = main(["predict", "--backend", "onnx", "--ckpt", str(tmp_path / "m.onnx"), "--estimate",
+               "mode", "--rig", "paper-train", "--images", str(img), str(img), str(img),
+               "--out", str(tmp_path / "o")])
+    assert rc == 1 and "exported with" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
 
 

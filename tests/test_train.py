@@ -139,8 +139,13 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
     assert main(["eval", "--ckpt", str(run), "--data", str(tmp_path / "val"), "--metrics",
                  "gijax", "--json", str(out_json)]) == 0
     res = json.loads(out_json.read_text())
-    assert res["metric_set"] == "gijax"
+    assert res["metric_set"] == "gijax" and res["estimate"] == "mean"
     assert abs(res["mae"] - best_mae) < 1e-5, (res["mae"], best_mae)
+    # The same weights read by their sub-pixel mode: another estimate, recorded as such.
+    assert main(["eval", "--ckpt", str(run), "--data", str(tmp_path / "val"), "--metrics",
+                 "gijax", "--estimate", "mode", "--json", str(out_json)]) == 0
+    mode = json.loads(out_json.read_text())
+    assert mode["estimate"] == "mode" and mode["mae"] != pytest.approx(res["mae"], rel=1e-6)
 
     # --- bad input: each a clear error (exit code 1 and a message naming the problem)
     def fails(args, *words):
@@ -150,6 +155,8 @@ def test_cli_train_eval_and_bad_input(tmp_path, capsys):
         for w in words:
             assert w in err, (w, err)
 
+    fails(["eval", "--method", "rtss", "--data", str(tmp_path / "val"), "--estimate", "mode"],
+          "--estimate", "--method rtss")
     base = [a if a != "E8-cpu" else "G8-cpu" for a in argv]
     fails(base, "preset", "E8-cpu", "G8-cpu")                    # resume with another preset
     fails(argv + ["--override", "num_candidates=16"], "8 candidates", "16")  # another candidate count
@@ -474,10 +481,11 @@ def test_a_run_started_from_a_trained_model_takes_its_weights_with_a_fresh_optim
     b.fit()
     b.close()
 
-    # The cost volume at the output's size (output_stride 1), the full sphere and another
-    # input scale resize no weight: accepted.
+    # The cost volume at the output's size (output_stride 1), the full sphere, another input
+    # scale, another loss and another estimate resize no weight: accepted.
     fine = dict(TINY, cost_hw=list(TINY["output_hw"]), output_stride=1, panorama="sphere",
-                image_scale=0.5 * TINY.get("image_scale", 1.0))
+                image_scale=0.5 * TINY.get("image_scale", 1.0), loss="smooth_l1",
+                estimate="mode", mode_window=1)
     f = Trainer(_config(model_overrides=fine, steps=1, init_from=str(tmp_path / "a")),
                 tmp_path / "f", tiny_rig(), stream, None, progress=False)
     for x, y in zip(jax.tree.leaves(a_params), jax.tree.leaves(f.local_variables()[0])):

@@ -1770,6 +1770,27 @@ def _regress(seed):
     return jnp.asarray(logits, F64), candidates(seed)
 
 
+def _probabilities(seed, shape=(1, 6, 2, 3)):
+    logits = np.random.default_rng(seed).normal(size=shape) * 2.0
+    e = np.exp(logits - logits.max(1, keepdims=True))
+    return jnp.asarray(e / e.sum(1, keepdims=True), F64)
+
+
+@case(regressor.estimate_inverse,
+      call=lambda prob, inv: regressor.estimate_inverse(prob, inv, "mode", 1), diff=(0, 1),
+      degenerate=[("a tie and a one-hot pixel", lambda: (
+          jnp.asarray(np.stack([np.eye(6)[[1, 4]].sum(0) / 2, np.eye(6)[5]], -1)
+                      .reshape(1, 6, 1, 2), F64),
+          jnp.asarray(np.linspace(2.0, 0.01, 6), F64)), False)])
+def _estimate_inverse(seed):
+    return _probabilities(seed), 1.0 / candidates(seed, 6)
+
+
+@case(regressor.mode_window_mask, call=lambda prob: regressor.mode_window_mask(prob, 2))
+def _mode_window_mask(seed):
+    return (_probabilities(seed),)
+
+
 @case(refine.colour_guide, diff=(0, 2))
 def _colour_guide(seed):
     rng = np.random.default_rng(seed)

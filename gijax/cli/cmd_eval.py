@@ -23,7 +23,8 @@ METRIC_DEFINITIONS = {
 
 def register(subparsers) -> None:
     from gijax.cli.options import (CKPT_HELP, HelpFormatter, add_candidates_option,
-                                   add_method_option, add_rig_option, add_rtss_preset_option)
+                                   add_estimate_option, add_method_option, add_rig_option,
+                                   add_rtss_preset_option)
 
     p = subparsers.add_parser(
         "eval", help="evaluate a trained run (or the RTSS baseline) on a dataset folder",
@@ -56,6 +57,7 @@ def register(subparsers) -> None:
     add_rig_option(p, default_help="the dataset's rig")
     add_candidates_option(p, None, "'train' for --method learned, the RTSS preset's own list "
                                    "for --method rtss")
+    add_estimate_option(p)
     p.add_argument("--which", default="best", choices=["best", "latest"],
                    help="checkpoint to load: best validated or newest periodic (an unreadable "
                         "one is skipped with a warning; the run folder is only read)")
@@ -117,8 +119,15 @@ def run(args) -> int:
     if args.method == "learned" and not args.ckpt:
         raise ValueError("--method learned needs --ckpt (a run folder, bundle or bundled model); "
                          "--method rtss evaluates the classical baseline without one")
+    if args.method == "rtss" and args.estimate:
+        raise ValueError("--estimate reads a learned model's probabilities; --method rtss has "
+                         "none (drop --estimate, or use --method learned)")
     if args.method == "learned":                 # a wrong model name is reported first
         model, mc, train_cand = load_model(args.ckpt, args.which)
+        from gijax.model import with_estimate
+
+        model = with_estimate(model, args.estimate)
+        mc = model.config
     reader = open_dataset(args.data, "evaluation", args.allow_partial)
     if args.rig:
         from gijax.io.rigfile import load_rig
@@ -173,7 +182,8 @@ def run(args) -> int:
               "method": args.method, "preset": name, "rig": args.rig or "dataset",
               "metric_set": args.metrics, "metric_definitions": METRIC_DEFINITIONS[args.metrics],
               "candidates_spec": args.candidates or "default", "candidates_how": how,
-              "candidates": [float(c) for c in cand], **metrics,
+              "candidates": [float(c) for c in cand],
+              "estimate": mc.estimate if args.method == "learned" else None, **metrics,
               "time_ms_per_sample": 1000.0 * float(np.mean(times)),
               "device": str(jax.local_devices()[0]), "host_peak_mb": host_peak_rss_mib(),
               # Each sample's own metrics, in dataset order, so that two methods can be

@@ -20,7 +20,7 @@ int8), and a TensorRT compatibility report
 
 def register(subparsers) -> None:
     from gijax.cli.options import (CKPT_HELP, RawHelpFormatter, add_candidates_option,
-                                   add_panorama_options, add_rig_option)
+                                   add_estimate_option, add_panorama_options, add_rig_option)
     from gijax.export.precision import DEFAULT_CALIBRATION_SCENES, PRECISIONS
 
     p = subparsers.add_parser("export", help=HELP, description=DESCRIPTION,
@@ -40,6 +40,7 @@ def register(subparsers) -> None:
                    help="intrinsics, poses, reference and candidates as graph inputs")
     add_candidates_option(p, "train", "'train'", what="candidates baked in / used for "
                                                        "validation")
+    add_estimate_option(p)
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="fp32, or fp16: feature extractor, cost-volume convolution "
@@ -70,9 +71,11 @@ def run(args) -> int:
     from gijax.store import model_or_untrained
 
     from gijax.cli.options import panorama_from_args
-    from gijax.model import coverage_note, model_panorama
+    from gijax.model import coverage_note, model_panorama, with_estimate
 
     model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
+    model = with_estimate(model, args.estimate)
+    config = model.config
     if not args.ckpt:
         label += " - for testing only"
     rig, pano = panorama_from_args(args, rig, model_panorama(config, "hemisphere").shape)

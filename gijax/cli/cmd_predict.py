@@ -38,8 +38,8 @@ default candidates are the preset's own list (RS-E32: 32 candidates even in inve
 
 def register(subparsers) -> None:
     from gijax.cli.options import (CKPT_HELP, RawHelpFormatter, add_candidates_option,
-                                   add_method_option, add_panorama_options, add_rig_option,
-                                   add_rtss_preset_option)
+                                   add_estimate_option, add_method_option, add_panorama_options,
+                                   add_rig_option, add_rtss_preset_option)
 
     p = subparsers.add_parser("predict", help=HELP, description=DESCRIPTION,
                               formatter_class=RawHelpFormatter)
@@ -67,6 +67,7 @@ def register(subparsers) -> None:
                         "rig's own masks")
     add_candidates_option(p, None, "'train' for the learned model, the RTSS preset's own "
                                    "list for --method rtss")
+    add_estimate_option(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--seed", type=int, default=0, help="initialisation seed for --preset")
     p.add_argument("--no-progress", action="store_true",
@@ -99,7 +100,8 @@ def run(args) -> int:
     if args.method == "rtss":
         # The baseline has no weights: a model named with it would be silently unused.
         given = [opt for opt, on in (("--ckpt", args.ckpt), ("--preset", args.preset),
-                                     ("--backend onnx", args.backend == "onnx")) if on]
+                                     ("--backend onnx", args.backend == "onnx"),
+                                     ("--estimate", args.estimate)) if on]
         if given:
             raise ValueError(f"--method rtss runs the classical baseline, which uses no model; "
                              f"drop {' and '.join(given)} (or use --method learned)")
@@ -107,6 +109,9 @@ def run(args) -> int:
     if args.candidates is None:
         args.candidates = "train"
     if args.backend == "onnx":
+        if args.estimate:
+            raise ValueError("--backend onnx runs the estimate the ONNX file was exported with; "
+                             "drop --estimate (or export with 'gijax export --estimate')")
         return _run_onnx(args, rig, images, masks)
     if not (args.ckpt or args.preset):
         raise ValueError("the learned method needs --ckpt RUN (or --preset NAME for an untrained "
@@ -118,11 +123,13 @@ def _run_learned(args, rig, images: np.ndarray, masks) -> int:
     from gijax.candidates.spec import model_candidates
     from gijax.cli.options import panorama_from_args
     from gijax.io.bounds import check_prediction
-    from gijax.model import model_panorama
+    from gijax.model import model_panorama, with_estimate
     from gijax.predict import LearnedPredictor
     from gijax.store import model_or_untrained
 
     model, config, train_cand, label = model_or_untrained(args.ckpt, args.preset, args.seed)
+    model = with_estimate(model, args.estimate)
+    config = model.config
     hemi = model_panorama(config, "hemisphere").shape
     rig, pano = panorama_from_args(args, rig, hemi)
     candidates, how = model_candidates(args.candidates, rig, config, train=train_cand)

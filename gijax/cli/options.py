@@ -198,6 +198,21 @@ def add_candidates_option(parser, default: str | None, default_help: str,
                         help=f"{what}: {HELP}. Default: {default_help}")
 
 
+def add_estimate_option(parser) -> None:
+    """``--estimate mean|mode``: how a learned model's distance is read from its probabilities
+    (:mod:`gijax.nn.regressor`); without it, the model's own configuration decides."""
+    from gijax.nn.regressor import ESTIMATES
+
+    parser.add_argument("--estimate", choices=ESTIMATES, default=None,
+                        help="how the learned model reads distance from its probabilities over "
+                             "the candidates: 'mean' (the paper's soft-argmax, the expectation "
+                             "over all of them) or 'mode' (the expectation within the "
+                             "configuration's mode_window, normally 2, of the most probable "
+                             "candidate: at an occlusion edge one surface instead of a "
+                             "distance between two); the same weights either way. Default: "
+                             "the model's own (its configuration's 'estimate')")
+
+
 # ------------------------------------------------------------------------------- methods
 
 METHODS = ("learned", "rtss")

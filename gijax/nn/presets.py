@@ -32,6 +32,7 @@ import dataclasses
 
 from gijax.checks import bad_field
 from gijax.nn.layers import CONV3D_LOWERINGS
+from gijax.nn.regressor import ESTIMATES
 
 _CANDIDATE_KINDS = ("ev", "gi")
 _LOSSES = ("smooth_l1", "volume")
@@ -42,6 +43,16 @@ _SWEEP_BOUNDARIES = ("zeros", "wrap")
 MATCHING_COSTS = ("none", "zncc")
 PANORAMA_COVERAGES = ("hemisphere", "sphere")
 OUTPUT_STRIDES = (1, 2)
+
+
+# Network configuration fields that change what a network is applied to or trained for, not any
+# weight: a model trained at one resolution, coverage, input scale, loss or estimate starts a run
+# at another (G16VV-cpu -> G16VV-cpu-fine; a hemisphere model fine-tuned on a full-sphere rig; a
+# small rig's images at full size; a volume-loss model fine-tuned on the smooth L1 of its
+# estimate, read by the mean or by the sub-pixel mode). The variable shapes are still checked one
+# by one after the configuration.
+WEIGHTLESS_FIELDS = frozenset({"name", "conv3d", "cost_hw", "output_hw", "output_stride",
+                               "panorama", "image_scale", "loss", "estimate", "mode_window"})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,6 +81,11 @@ class ModelConfig:
     cross-correlation of the cameras' grey levels at ``matching_samples x matching_samples``
     sub-cell points, read from the surrogate images; ``G16VV-cpu-zncc``); ``'none'`` (the
     paper's) leaves it out.
+    ``estimate`` is how the distance is read from the probabilities over the candidates
+    (:mod:`gijax.nn.regressor`): ``'mean'`` (the paper's soft-argmax) or ``'mode'``, the
+    expectation within ``mode_window`` candidates of the most probable one (the sub-pixel
+    mode: a pixel on an occlusion boundary takes one surface instead of a distance between
+    two); neither changes a weight, and the volume loss does not depend on it.
 
     Two choices keep the release's behaviour by default and offer gijax's alternative:
 
@@ -115,6 +131,8 @@ class ModelConfig:
     refine: bool = False
     matching_cost: str = "none"
     matching_samples: int = 4
+    estimate: str = "mean"
+    mode_window: int = 2
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -130,6 +148,7 @@ class ModelConfig:
             ("conv3d", CONV3D_LOWERINGS),
             ("panorama", PANORAMA_COVERAGES),
             ("matching_cost", MATCHING_COSTS),
+            ("estimate", ESTIMATES),
         ):
             if getattr(self, field) not in allowed:
                 fail(field, f"one of {allowed}", getattr(self, field))
@@ -171,6 +190,8 @@ class ModelConfig:
             fail("d_min/d_max", "0 < d_min < d_max", (self.d_min, self.d_max))
         if not self.image_scale > 0:
             fail("image_scale", "a positive factor", self.image_scale)
+        if self.mode_window < 0:
+            fail("mode_window", "a non-negative number of candidates", self.mode_window)
 
     @property
     def feature_hw(self) -> tuple[int, int]:

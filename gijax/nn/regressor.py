@@ -1,4 +1,4 @@
-"""Soft-argmax regression of distance from the U-Net logits.
+"""Regression of distance from the U-Net logits: the soft-argmax or the sub-pixel mode.
 
 The (B, D, h, w) logits are upsampled bilinearly x2 (align_corners=False) to the output size
 (or used as they are when the output has the logits' size, ``output_stride`` 1) BEFORE the
@@ -7,6 +7,22 @@ multi-modal distributions that interpolating probabilities would blur). The esti
 expectation of inverse distance, ``inv = sum_i p_i / d_i`` (1/m), which is what the candidates
 are (near-)uniform in; ``distance = 1 / inv`` (m). The per-pixel entropy
 ``-sum_i p_i log p_i`` (nats, 0 .. log D) serves as the uncertainty.
+
+Two estimates (``estimate``):
+
+* ``'mean'`` (the paper's and the release's): the expectation over all D candidates. Where the
+  distribution has two modes (a pixel on an occlusion boundary sees a near and a far surface) it
+  lands between them, on neither surface.
+* ``'mode'``: the sub-pixel mode (Tulyakov et al., "Practical Deep Stereo", NeurIPS 2018, their
+  sub-pixel MAP): the expectation over the candidates within ``window`` of the most probable
+  one, renormalised, so a two-mode pixel takes the stronger surface with sub-candidate
+  precision. The window's choice is piecewise constant in the logits (no gradient flows through
+  it); inside it the estimate is differentiable like the mean. It is built from a maximum and
+  shifted comparisons, not an arg-max, so that it exports to ONNX / TensorRT as elementwise ops;
+  where two candidates tie for the maximum, the window covers both neighbourhoods.
+
+The probabilities, the entropy and the volume loss do not depend on the estimate, so a model
+trained with the volume loss can be read with either.
 """
 
 from __future__ import annotations
@@ -20,11 +36,44 @@ from gijax.nn.upsample import upsample2
 
 Array = jax.Array
 
+ESTIMATES = ("mean", "mode")
 
-def regress(logits: Array, candidates: Array, output_hw: Sequence[int]) -> dict[str, Array]:
+
+def mode_window_mask(prob: Array, window: int) -> Array:
+    """(B, D, H, W) bool: candidates within ``window`` places of a most probable one along
+    axis 1 (no gradient; see the module docstring)."""
+    prob = jax.lax.stop_gradient(prob)
+    top = prob >= jnp.max(prob, axis=1, keepdims=True)
+    d = prob.shape[1]
+    mask = top
+    for shift in range(1, min(window, d - 1) + 1):
+        pad = jnp.zeros_like(top[:, :shift])
+        mask = (mask | jnp.concatenate([pad, top[:, :-shift]], axis=1)
+                | jnp.concatenate([top[:, shift:], pad], axis=1))
+    return mask
+
+
+def estimate_inverse(prob: Array, inv_cand: Array, estimate: str = "mean",
+                     window: int = 2) -> Array:
+    """Inverse distance (B, H, W) from probabilities (B, D, H, W) over candidates whose
+    inverses are ``inv_cand`` (D,): their expectation (``'mean'``) or the sub-pixel mode
+    (``'mode'``: the expectation within ``window`` candidates of the most probable one)."""
+    if estimate == "mean":
+        return jnp.einsum("bdhw,d->bhw", prob, inv_cand)
+    if estimate != "mode":
+        raise ValueError(f"estimate must be one of {ESTIMATES}; found {estimate!r}")
+    if window < 0:
+        raise ValueError(f"the mode's window must be >= 0 candidates; found {window}")
+    kept = jnp.where(mode_window_mask(prob, window), prob, 0.0)
+    return jnp.einsum("bdhw,d->bhw", kept, inv_cand) / jnp.sum(kept, axis=1)
+
+
+def regress(logits: Array, candidates: Array, output_hw: Sequence[int], estimate: str = "mean",
+            window: int = 2) -> dict[str, Array]:
     """Logits (B, D, h, w), candidates (D,) ascending metres, output_hw = (2h, 2w) or (h, w) ->
     dict(inv_distance (B, H, W) 1/m, distance (B, H, W) m, prob (B, D, H, W),
-    entropy (B, H, W) nats)."""
+    entropy (B, H, W) nats); ``estimate`` and ``window`` as :func:`estimate_inverse` takes
+    them."""
     if logits.ndim != 4:
         raise ValueError(f"regress: logits must be (B, D, h, w), got {logits.shape}")
     b, d, h, w = logits.shape
@@ -42,6 +91,6 @@ def regress(logits: Array, candidates: Array, output_hw: Sequence[int]) -> dict[
     log_p = jax.nn.log_softmax(up, axis=1)
     prob = jnp.exp(log_p)
     inv_cand = (1.0 / candidates).astype(up.dtype)
-    inv = jnp.einsum("bdhw,d->bhw", prob, inv_cand)
+    inv = estimate_inverse(prob, inv_cand, estimate, window)
     entropy = -jnp.sum(prob * log_p, axis=1)
     return {"inv_distance": inv, "distance": 1.0 / inv, "prob": prob, "entropy": entropy}

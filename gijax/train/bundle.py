@@ -39,10 +39,11 @@ def check_replaceable(out_dir: str | os.PathLike, inputs=()) -> Path:
 
 def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLike,
                 provenance: dict | None = None, candidates=None, inputs=(),
-                figures: dict | None = None) -> Path:
+                figures: dict | None = None, estimate: str | None = None) -> Path:
     """Write ``model``'s variables, a copy of its run's ``config.json`` and the provenance.
 
-    ``candidates`` (a run's learned list) replaces the config's training list in the copy.
+    ``candidates`` (a run's learned list) replaces the config's training list in the copy,
+    ``estimate`` its network's estimate.
     ``figures`` maps file names of :data:`FIGURE_PATTERNS` to PNG files copied in.
     ``out_dir`` must be new or a bundle that holds none of ``inputs``
     (:func:`check_replaceable`). The folder is replaced whole and atomically, an interrupted
@@ -53,7 +54,8 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
     figures = _checked_figures(figures)
     out_dir = check_replaceable(out_dir, (config_file, *inputs))
     weights = flatten_variables(nnx.to_pure_dict(nnx.state(model)))
-    return _write(weights, config_file, out_dir, provenance, candidates, inputs, figures)
+    return _write(weights, config_file, out_dir, provenance, candidates, inputs, figures,
+                  estimate)
 
 
 def _checked_figures(figures: dict | None) -> dict:
@@ -66,15 +68,19 @@ def _checked_figures(figures: dict | None) -> dict:
 
 
 def _write(weights: dict, config_file, out_dir: Path, provenance, candidates, inputs,
-           figures: dict) -> Path:
-    """The bundle folder of ``weights`` (a ``weights.npz`` key -> array), replaced atomically."""
+           figures: dict, estimate: str | None = None) -> Path:
+    """The bundle folder of ``weights`` (a ``weights.npz`` key -> array), replaced atomically;
+    ``estimate`` (when given) replaces the network configuration's."""
 
     def write(tmp: Path) -> None:
-        if candidates is None:
+        if candidates is None and estimate is None:
             shutil.copyfile(config_file, tmp / CONFIG_FILE)
         else:
             doc = json.loads(Path(config_file).read_text())
-            doc["candidates"] = [float(c) for c in np.asarray(candidates, np.float64)]
+            if candidates is not None:
+                doc["candidates"] = [float(c) for c in np.asarray(candidates, np.float64)]
+            if estimate is not None:
+                doc["model"]["estimate"] = estimate
             (tmp / CONFIG_FILE).write_text(json.dumps(doc, indent=2) + "\n")
         np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f"
                                         else v for k, v in weights.items()})
@@ -154,12 +160,18 @@ def save_averaged_bundle(packs: Sequence, config_file: str | os.PathLike,
 
 def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
                  provenance: dict | None = None, which: str = "best",
-                 figures: dict | None = None) -> Path:
+                 figures: dict | None = None, estimate: str | None = None) -> Path:
     """The bundle of a training run (its best validated checkpoint by default), with
-    ``figures`` as :func:`save_bundle` takes them."""
+    ``figures`` as :func:`save_bundle` takes them; ``estimate`` ('mean' or 'mode', when given)
+    is how the bundle reads its distances, whatever the run's configuration says (the weights
+    are the same either way: :mod:`gijax.nn.regressor`)."""
+    from gijax.nn.regressor import ESTIMATES
     from gijax.store.runs import load_for_inference
 
+    if estimate is not None and estimate not in ESTIMATES:
+        raise ValueError(f"write_bundle: estimate must be one of {ESTIMATES}; found "
+                         f"{estimate!r}")
     run_dir = Path(run_dir)
     model, _, cand = load_for_inference(run_dir, which=which)
     return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance, candidates=cand,
-                       figures=figures)
+                       figures=figures, estimate=estimate)

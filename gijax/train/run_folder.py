@@ -159,21 +159,17 @@ def initial_variables(config: TrainConfig, mc: ModelConfig, params, rest):
     shapes as ``params`` and ``rest``."""
     from flax import nnx
 
+    from gijax.nn.presets import WEIGHTLESS_FIELDS
     from gijax.store import load_model
     from gijax.store.runs import check_param_shapes, named_shapes
 
     spec = config.init_from
     model, found, _ = load_model(spec)
-    # Fields that change what the network is applied to, not any weight: a model trained at one
-    # resolution, coverage or input scale starts a run at another (G16VV-cpu -> G16VV-cpu-fine;
-    # a hemisphere model fine-tuned on a full-sphere rig; a small rig's images at full size).
-    resolution = {"name", "conv3d", "cost_hw", "output_hw", "output_stride", "panorama",
-                  "image_scale"}
     same = {f.name: getattr(mc, f.name) for f in dataclasses.fields(found)
-            if f.name in resolution}
+            if f.name in WEIGHTLESS_FIELDS}
     if dataclasses.replace(found, **same) != mc:
         diff = {f.name: (getattr(found, f.name), getattr(mc, f.name))
-                for f in dataclasses.fields(found) if f.name not in resolution
+                for f in dataclasses.fields(found) if f.name not in WEIGHTLESS_FIELDS
                 and getattr(found, f.name) != getattr(mc, f.name)}
         raise ValueError(f"init_from {spec!r}: its network configuration differs from this "
                          f"run's in " + ", ".join(f"{k} (its {a!r}, this run's {b!r})"
