@@ -45,8 +45,10 @@ same weights, each cell a quarter of the size) and fine-tunes it on the same mix
 
     python experiments/bundle_model.py --scale cpu --recipe cells --design G16VV-cpu-zncc --until 6000
 
-The bundled ``G16VV-cpu-zncc-fine`` is its milestone, published with ``--publish
-gijax/assets/G16VV-cpu-zncc-fine`` (the coarse bundle it starts from stays as it is).
+The bundled ``G16VV-cpu-zncc-fine`` is its step 6000 read by its sub-pixel mode, published
+with ``--estimate mode --publish gijax/assets/G16VV-cpu-zncc-fine`` (the coarse bundle it starts
+from stays as it is). ``--estimate`` changes how the new bundle reads its probabilities, not its
+weights; it is evaluated and published so.
 """
 
 from __future__ import annotations
@@ -65,8 +67,8 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from experiments.arguments import add_common_arguments, resolve_paths, script_parser  # noqa: E402
-from experiments.evaluation import (cached_evaluation, net_predictor, rtss_predictor,  # noqa: E402
-                                    weights_id)
+from experiments.evaluation import (cached_evaluation, model_id, net_predictor,  # noqa: E402
+                                    rtss_predictor, weights_id)
 from experiments.provenance import provenance_markdown, provenance_record  # noqa: E402
 from experiments.reporting import (check_results_section, fmt, log,  # noqa: E402
                                    publish_section, save_figure, save_png, save_table)
@@ -146,6 +148,10 @@ CELLS_RECIPES = {
                   ckpt_every=100),
 }
 RECIPE_KINDS = ("finetune", "long", "cells")
+# How a bundle reads its distances (``--estimate``; gijax.nn.regressor), in the provenance.
+ESTIMATE_WORDS = {"mean": "soft-argmax (the mean over the candidates)",
+                  "mode": "sub-pixel mode (the mean within two candidates of the most probable "
+                          "one; the training validated the same weights by their mean)"}
 DEFAULT_DESIGN = "G16VV-cpu"
 # The start record of a run trained in pieces, inside its pack (see initial_weights).
 INIT_FILE = "init.json"
@@ -420,10 +426,12 @@ def _first_started(log: Path) -> Optional[dict]:
 # --------------------------------------------------------------------------- evaluation
 
 def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
-             lists=("train", "spacing")) -> tuple[list, dict]:
+             lists=("train", "spacing"), estimates=None) -> tuple[list, dict]:
     """Rows (model, list, test rig, metrics) for every model in ``models`` (label -> path)
     with each of ``lists`` (the training and the recomputed list), and RTSS, on every test
-    set of ``tests``."""
+    set of ``tests``. ``estimates`` (label -> 'mean' or 'mode') reads a model otherwise than
+    its configuration does (``gijax eval --estimate``)."""
+    estimates = estimates or {}
     rows, preds = [], {}
     for test in tests:
         data = work / "data" / test
@@ -436,10 +444,15 @@ def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
         for label, path in models.items():
             for lst in lists:
                 log(f"  {label}, {lst} list, on {test}")
+                key = {"method": label, "model": model_id(path), "data": test, "samples": n,
+                       "candidates": lst}
+                estimate = estimates.get(label)
+                if estimate:
+                    key["estimate"] = estimate
                 res = cached_evaluation(
-                    work, {"method": label, "weights": weights_id(path), "data": test,
-                           "samples": n, "candidates": lst},
-                    lambda rig, p=path, s=lst: net_predictor(Path(p), rig, s), data)
+                    work, key,
+                    lambda rig, p=path, s=lst, e=estimate: net_predictor(Path(p), rig, s, e),
+                    data)
                 rows.append(_row(test, label, "learned", lst, res))
                 preds[(test, f"{label}, {lst}")] = res["first_prediction"]
     return rows, preds
@@ -575,11 +588,12 @@ def write_figures(out: Path, work: Path, scale: Scale, preds: dict, run: Path,
 
 
 def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, prov: dict,
-            data: list, trained: dict, targets: list, plan: Plan = FINETUNE) -> None:
+            data: list, trained: dict, targets: list, plan: Plan = FINETUNE,
+            estimate: Optional[str] = None) -> None:
     """The bundle: best validated checkpoint, config, and beside them PROVENANCE.json (every
-    command, seeds, steps, validations, targets), the learning curve and the figures."""
+    command, seeds, steps, validations, targets), the learning curve and the figures;
+    ``estimate`` (when given) is how the bundle reads its distances."""
     from gijax.train.bundle import write_bundle
-
 
     mix = [d for d in data if d["role"].startswith("mix-")]
     records = metrics_records(run)
@@ -612,14 +626,16 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"{recipe.augment}, calibration errors up to "
                           f"{recipe.calibration_deg:g} deg, starting from {start}"
                           + (" with its cost volume at the output's resolution (one cost cell "
-                             "per output pixel)" if plan.kind == "cells" else "")),
+                             "per output pixel)" if plan.kind == "cells" else "")
+                          + (f"; read by its {ESTIMATE_WORDS[estimate]}" if estimate else "")),
            "initialised_from": init,
            "limitations": LIMITATIONS,
            "made_by": prov["command"], "git_revision": prov["git_revision"],
            "commands": [d["command"] for d in data if d["role"].startswith("mix-")]
            + [next(d["command"] for d in data if d["role"] == "val"), trained["command"],
               f"python -c \"from gijax.train.bundle import write_bundle; write_bundle("
-              f"'{run}', '{bundle}', provenance)\""],
+              f"'{run}', '{bundle}', provenance"
+              + (f", estimate='{estimate}'" if estimate else "") + ")\""],
            "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "models", "spacing_m",
                                        "cameras", "samples", "seed") if k in d} for d in data],
            "runs": run_pieces(records),
@@ -632,7 +648,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
     # The figures go in with the weights, in one atomic replacement of the bundle folder.
     written = write_bundle(run, bundle, doc, figures={
         "learning_curve.png": figures["curve"],
-        **{f"validation_{t}.png": figures[t] for t in TESTS}})
+        **{f"validation_{t}.png": figures[t] for t in TESTS}}, estimate=estimate)
     log(f"wrote the bundle {written}")
 
 
@@ -677,6 +693,11 @@ def main(argv=None) -> int:
                         help=f"the CPU-scale design of --recipe long or cells (default "
                              f"{DEFAULT_DESIGN}; the designs are compared by "
                              f"experiments/design_comparison.py)")
+    parser.add_argument("--estimate", choices=tuple(ESTIMATE_WORDS), default=None,
+                        help="how the new bundle reads distance from its probabilities, "
+                             "evaluated so and written into the published bundle: 'mean' "
+                             "(soft-argmax) or 'mode' (the sub-pixel mode, gijax.nn.regressor); "
+                             "the same weights either way (default: as the run is configured)")
     parser.add_argument("--until", type=int, default=None, metavar="STEP",
                         help="train only to this step (a milestone), then evaluate and "
                              "publish what the run has; the same command with a later STEP "
@@ -722,7 +743,7 @@ def main(argv=None) -> int:
     if previous != "none":
         models["previous bundle"] = Path(previous)
     t0 = time.perf_counter()
-    rows, preds = evaluate(work, scale, models)
+    rows, preds = evaluate(work, scale, models, estimates={"new bundle": args.estimate})
     durations["evaluation"] = time.perf_counter() - t0
     targets = check_targets(rows, "new bundle")
     log_targets(targets)
@@ -730,7 +751,7 @@ def main(argv=None) -> int:
     prov = provenance_record(f"{NAME}.py", argv, scale, args.seed, work, started, durations,
                              data)
     prov["recipe"] = {**dataclasses.asdict(recipe), "kind": plan.kind, "design": plan.design,
-                      "until": args.until}
+                      "until": args.until, "estimate": args.estimate}
     # The scale's summary describes the tables' per-model training; this script trains by its
     # recipe, so the provenance states that instead.
     tests = sorted({d["samples"] for d in data if d["role"] in TESTS})
@@ -751,7 +772,9 @@ def main(argv=None) -> int:
         f"({len(mixture_roles(recipe))} datasets of "
         f"{recipe.scenes} scenes: paper-train, paper-train through drawn lenses, random "
         f"layouts through drawn lenses), {trained['trained_steps']} of {recipe.steps} steps of "
-        f"{recipe.batch} ({how}), evaluated on "
+        f"{recipe.batch} ({how})"
+        + (f", the new bundle read by its {ESTIMATE_WORDS[args.estimate]}" if args.estimate
+           else "") + ", evaluated on "
         f"the tables' held-out scenes (inverse distance, 1/m, the paper's metric definitions; "
         f"'spacing' is the paper's recomputed list, the closed form at the rig's camera "
         f"spacing).", table_markdown(rows), "## Targets", target_lines,
@@ -767,7 +790,7 @@ def main(argv=None) -> int:
         model = (preset_name(scale, MODEL) if plan.kind == "finetune"
                  else design_preset(scale, plan.design))
         publish(run, Path(args.publish), model, recipe, figures, prov, data, trained, targets,
-                plan)
+                plan, args.estimate)
     return 0
 
 

@@ -25,7 +25,7 @@ if __package__ in (None, ""):
 
 from experiments.arguments import (add_common_arguments, resolve_paths,  # noqa: E402
                                    script_parser)
-from experiments.evaluation import weights_id  # noqa: E402
+from experiments.evaluation import model_id, weights_id  # noqa: E402
 from experiments.provenance import command_line, revision  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, read_json,  # noqa: E402
                                    write_json, write_text)
@@ -102,10 +102,12 @@ def main(argv=None) -> int:
 
     model = args.model or DEFAULT_MODEL
     wid = weights_id(resolve_model_path(model))
+    # The runs are kept by the model as it predicts (weights and configuration).
+    mid = model_id(resolve_model_path(model))
     started, code = time.perf_counter(), revision()
     rows, commands = [], []
     for seed in cfg["seeds"]:
-        folder = work / NAME / wid / f"seed-{seed}"
+        folder = work / NAME / mid / f"seed-{seed}"
         commands.append(gijax_command(demo_argv(seed, cfg["scenes"], model, folder)))
         rows.extend(seed_rows(seed, ensure_demo(folder, seed, cfg["scenes"], model, code)))
     met = all(r["ahead"] for r in rows)
@@ -120,12 +122,14 @@ def main(argv=None) -> int:
           f"{r['scenes_won']}/{r['scenes']}", "yes" if r["ahead"] else "no"] for r in rows])
     meta = {"command": command_line(f"{NAME}.py", argv if argv is not None else sys.argv[1:]),
             "scale": args.scale, "config": cfg, "model": model, "model_weights": wid,
+            "model_id": mid,
             "demo_commands": commands, "git_revision": code, "machine": machine_info(),
             "seconds": time.perf_counter() - started}
     write_json(out.with_suffix(".json"), {"meta": meta, "rows": rows, "target_met": met})
     body = "\n\n".join([
         f"Command `{meta['command']}` at git {short_revision(code)}, {cfg['scenes']} scene(s) per rig and "
-        f"seed; model `{model}` (weights {wid}). Each seed is one `gijax demo` run as typed "
+        f"seed; model `{model}` (weights {wid}; with its configuration, which says how it reads "
+        f"them, model {mid}). Each seed is one `gijax demo` run as typed "
         f"(`{commands[0]}`, then the same with the next seed); MAE in 1/m, the paper's "
         f"definitions, the mean over the seed's scenes.", grid, f"- {target}"])
     write_text(out.with_suffix(".md"), f"# The demo on fixed seeds\n\n{body}\n")

@@ -100,6 +100,18 @@ def weights_id(path: Path) -> str:
     return h.hexdigest()[:12]
 
 
+def model_id(path: Path) -> str:
+    """A short hash of a model as it predicts: its weights (:func:`weights_id`) and its network
+    configuration (``config.json``'s ``model``, which names the estimate that reads the
+    weights), so a cached evaluation follows the model, not the path; the same weights read
+    another way are another model."""
+    path = Path(path)
+    config = json.loads((path / "config.json").read_text()).get("model", {})
+    h = hashlib.sha256(weights_id(path).encode())
+    h.update(json.dumps(config, sort_keys=True).encode())
+    return h.hexdigest()[:12]
+
+
 def _one_sample(batch_predictor, example: dict) -> Predictor:
     """A library batch predictor (:mod:`gijax.predict`) called one sample at a time, with the
     XLA peak memory of its compiled call for ``example``'s shapes."""
@@ -122,17 +134,22 @@ def _example(rig, dtype) -> dict:
             "masks": np.ones((1, n, cam.height, cam.width), np.float32)}
 
 
-def net_predictor(run_dir: Path, rig, candidates_spec: str) -> Predictor:
+def net_predictor(run_dir: Path, rig, candidates_spec: str,
+                  estimate: Optional[str] = None) -> Predictor:
     """A trained network (a run folder's best validated checkpoint, or a bundle) on raw
     fisheye images of ``rig`` (:class:`gijax.predict.LearnedImagePredictor`).
 
     The timed call includes the resampling to surrogate images, as the classical baseline's
-    includes its matching views. ``candidates_spec`` is ``gijax eval``'s ``--candidates``.
+    includes its matching views. ``candidates_spec`` is ``gijax eval``'s ``--candidates``,
+    ``estimate`` its ``--estimate`` (None: the model's own).
     """
     from gijax.candidates.spec import model_candidates
+    from gijax.model import with_estimate
     from gijax.predict import LearnedImagePredictor
 
     model, mc, train_cand = loaded_model(run_dir)
+    model = with_estimate(model, estimate)
+    mc = model.config
     cand, _ = model_candidates(candidates_spec, rig, mc, train=train_cand)
     return _one_sample(LearnedImagePredictor(model, rig, cand), _example(rig, np.uint8))
 

@@ -47,7 +47,7 @@ from experiments.arguments import (add_common_arguments, resolve_paths,  # noqa:
                                    script_parser)
 from experiments.bundle_model import learning_curve  # noqa: E402
 from experiments.claims import paired_difference, paired_text  # noqa: E402
-from experiments.evaluation import weights_id  # noqa: E402
+from experiments.evaluation import model_id, weights_id  # noqa: E402
 from experiments.provenance import command_line, revision  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, read_json, save_figure,  # noqa: E402
                                    write_json, write_text)
@@ -169,9 +169,9 @@ def ensure_finetuned(work: Path, cfg: dict) -> dict:
 
 
 def method_key(method: str, weights) -> str:
-    """A method's name with its weights' hash (``weights``: a bundle or run folder), so that
-    cached outputs follow the weights."""
-    return BASELINE if method == BASELINE else f"{method}-{weights_id(Path(weights))}"
+    """A method's name with its model's hash (``weights``: a bundle or run folder; weights and
+    configuration), so that cached outputs follow the model."""
+    return BASELINE if method == BASELINE else f"{method}-{model_id(Path(weights))}"
 
 
 def evaluation(work: Path, method: str, ckpt, weights) -> dict:

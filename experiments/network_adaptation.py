@@ -44,8 +44,8 @@ if __package__ in (None, ""):
 from experiments.arguments import (add_common_arguments, resolve_paths,  # noqa: E402
                                    script_parser)
 from experiments.claims import paired_difference, paired_text  # noqa: E402
-from experiments.evaluation import (cached_evaluation, net_predictor, rtss_predictor,  # noqa: E402
-                                    weights_id)
+from experiments.evaluation import (cached_evaluation, model_id, net_predictor,  # noqa: E402
+                                    rtss_predictor, weights_id)
 from experiments.learned_candidates import RING, ring_rig  # noqa: E402
 from experiments.provenance import command_line, revision  # noqa: E402
 from experiments.reporting import (fmt, log, publish_section, save_figure, save_png,  # noqa: E402
@@ -195,13 +195,13 @@ def objective_at_truth(model: str, frames: Path, count: int) -> dict:
 
 def score(work: Path, data: Path, label: str, model_path, candidates: str | None) -> dict:
     """Held-out metrics of a model (``candidates`` list spec) or of RTSS (``model_path``
-    None), cached in the work folder by the weights' hash."""
+    None), cached in the work folder by the model's hash (weights and configuration)."""
     n = len(dataset_seeds(data))
     if model_path is None:
         return cached_evaluation(work, {"method": TEACHER, "data": str(data.name), "samples": n,
                                         "pano": list(PANO_HW)},
                                  lambda rig: rtss_predictor(rig, TEACHER, PANO_HW), data)
-    return cached_evaluation(work, {"method": label, "weights": weights_id(model_path),
+    return cached_evaluation(work, {"method": label, "model": model_id(model_path),
                                     "data": str(data.name), "samples": n,
                                     "candidates": candidates},
                              lambda rig: net_predictor(Path(model_path), rig, candidates), data)
@@ -301,7 +301,7 @@ def main(argv=None) -> int:
     from gijax.store import resolve_model_path
 
     bundle = resolve_model_path(model)
-    bundle_id = weights_id(bundle)
+    bundle_id = model_id(bundle)
     labels = {"before": f"{model} before (training list)",
               "before-spacing": f"{model} before (list recomputed for the ring: spacing)",
               TEACHER: f"{TEACHER} (classical; the teacher)"}
@@ -330,7 +330,7 @@ def main(argv=None) -> int:
                                   f"({args.scale} scale; held-out MAE never used to choose)")
     meta = {"command": command_line(f"{NAME}.py", argv if argv is not None else sys.argv[1:]),
             "scale": args.scale, "config": cfg, "model": model,
-            "model_weights": bundle_id, "rig": RING, "data": data, "adaptations": runs,
+            "model_weights": weights_id(bundle), "model_id": bundle_id, "rig": RING, "data": data, "adaptations": runs,
             "git_revision": revision(), "machine": machine_info(),
             "seconds": time.perf_counter() - started}
     strip = ("first_prediction",)

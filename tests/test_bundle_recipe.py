@@ -241,3 +241,61 @@ def test_a_run_resuming_from_its_pack_on_a_new_machine_keeps_its_start_record(tm
     fresh = B.initial_weights(tmp_path / "runs" / "other", recipe, None)
     assert fresh["git_revision"] == revision() and fresh["weights_sha256_12"] == bundle_id
     assert (tmp_path / "runs" / "other.init.json").is_file()
+
+
+def test_cached_evaluations_follow_the_model_its_weights_and_how_they_are_read(tmp_path):
+    """The evaluation cache's key (``model_id``) follows the weights and the network
+    configuration, not the path: the same bundle copied elsewhere keeps its key; read by the
+    other estimate (mean or sub-pixel mode) it is another model (same ``weights_id``, another
+    ``model_id``), so a result cached for one estimate is never served for the other."""
+    import json
+    import shutil
+
+    from experiments.evaluation import model_id, weights_id
+    from gijax.store import resolve_model_path
+
+    source = resolve_model_path("G16VV-cpu-zncc-fine")
+    copies = {}
+    for name in ("a", "b", "c"):
+        copies[name] = tmp_path / name
+        copies[name].mkdir()
+        for f in ("weights.npz", "config.json"):
+            shutil.copy(source / f, copies[name] / f)
+    config = json.loads((copies["c"] / "config.json").read_text())
+    own = config["model"].get("estimate", "mean")
+    config["model"]["estimate"] = "mode" if own == "mean" else "mean"
+    (copies["c"] / "config.json").write_text(json.dumps(config))
+    assert model_id(copies["a"]) == model_id(copies["b"]) == model_id(source)
+    assert weights_id(copies["c"]) == weights_id(copies["a"])
+    assert model_id(copies["c"]) != model_id(copies["a"])
+
+
+def test_a_bundle_read_by_another_estimate_is_evaluated_under_its_own_key(tmp_path, monkeypatch):
+    """``--estimate``: the new bundle's evaluations are cached under a key naming the estimate
+    (and the model's hash), the previous bundle's and RS-E32's under their usual keys, and the
+    predictor the key stands for reads the model by that estimate."""
+    from gijax.store import resolve_model_path
+
+    calls = []
+
+    def fake_cached(work, key, make, data):
+        calls.append((key, make))
+        return {"mae": 0.01, "first_prediction": np.zeros((2, 2))}
+
+    monkeypatch.setattr(B, "cached_evaluation", fake_cached)
+    monkeypatch.setattr(B, "dataset_seeds", lambda data: [1, 2])
+    bundle = resolve_model_path("G16VV-cpu-zncc-fine")
+    rows, _ = B.evaluate(tmp_path, scales.SCALES["cpu"],
+                         {"new bundle": bundle, "previous bundle": bundle},
+                         tests=("paper-test1",), lists=("train",),
+                         estimates={"new bundle": "mode"})
+    keys = [k for k, _ in calls]
+    assert [k["method"] for k in keys] == ["RS-E32", "new bundle", "previous bundle"]
+    assert keys[1]["estimate"] == "mode" and "estimate" not in keys[2]
+    assert keys[1]["model"] == keys[2]["model"] == B.model_id(bundle)
+    seen = []
+    monkeypatch.setattr(B, "net_predictor", lambda *a: seen.append(a))
+    for _, make in calls[1:]:
+        make("rig")
+    assert [a[3] for a in seen] == ["mode", None]
+    assert [r["model"] for r in rows] == ["RS-E32", "new bundle", "previous bundle"]
