@@ -73,6 +73,8 @@ def test_a_bundle_written_with_another_estimate_reads_the_same_weights_so(tmp_pa
     assert np.abs(np.asarray(out["inv_distance"]) - np.asarray(mean)).max() > 1e-3
     with pytest.raises(ValueError, match="estimate"):
         write_bundle(tmp_path / "run", tmp_path / "never", estimate="median")
+    with pytest.raises(ValueError, match="estimate"):
+        save_bundle(model, config_file, tmp_path / "never", estimate="median")
     assert not (tmp_path / "never").exists()
 
 
