@@ -77,6 +77,7 @@ from experiments.workfolder import (dataset_seeds, ensure_dataset, gijax_command
                                     metrics_records, render_recorded, rig_file_argument,
                                     train_run)
 from gijax.bench.report import markdown_grid  # noqa: E402
+from gijax.nn.regressor import ESTIMATES  # noqa: E402
 
 NAME = "bundle_model"
 LONG_NAME = "long_training"
@@ -693,7 +694,7 @@ def main(argv=None) -> int:
                         help=f"the CPU-scale design of --recipe long or cells (default "
                              f"{DEFAULT_DESIGN}; the designs are compared by "
                              f"experiments/design_comparison.py)")
-    parser.add_argument("--estimate", choices=tuple(ESTIMATE_WORDS), default=None,
+    parser.add_argument("--estimate", choices=ESTIMATES, default=None,
                         help="how the new bundle reads distance from its probabilities, "
                              "evaluated so and written into the published bundle: 'mean' "
                              "(soft-argmax) or 'mode' (the sub-pixel mode, gijax.nn.regressor); "

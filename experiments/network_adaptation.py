@@ -330,7 +330,8 @@ def main(argv=None) -> int:
                                   f"({args.scale} scale; held-out MAE never used to choose)")
     meta = {"command": command_line(f"{NAME}.py", argv if argv is not None else sys.argv[1:]),
             "scale": args.scale, "config": cfg, "model": model,
-            "model_weights": weights_id(bundle), "model_id": bundle_id, "rig": RING, "data": data, "adaptations": runs,
+            "model_weights": weights_id(bundle), "model_id": bundle_id, "rig": RING,
+            "data": data, "adaptations": runs,
             "git_revision": revision(), "machine": machine_info(),
             "seconds": time.perf_counter() - started}
     strip = ("first_prediction",)

@@ -117,6 +117,7 @@ NOT_TRACED = {
     "gijax.train.unlabeled.stored_objective": "fills in a stored dict of weights",
     # argument checks
     "gijax.candidates.validation.is_concrete": "inspects whether values are traced",
+    "gijax.nn.regressor.check_estimate": "argument check (raises on a name or window)",
     "gijax.candidates.validation.require": "argument check (raises, or a checkify debug check)",
     "gijax.candidates.validation.check_count": "argument check of a static count",
     "gijax.candidates.validation.check_range": "argument check",

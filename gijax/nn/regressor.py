@@ -39,6 +39,15 @@ Array = jax.Array
 ESTIMATES = ("mean", "mode")
 
 
+def check_estimate(estimate: str, window: int = 0) -> None:
+    """ValueError (one line) unless ``estimate`` is one of :data:`ESTIMATES` and ``window`` a
+    non-negative number of candidates."""
+    if estimate not in ESTIMATES:
+        raise ValueError(f"estimate must be one of {ESTIMATES}; found {estimate!r}")
+    if window < 0:
+        raise ValueError(f"the mode's window must be >= 0 candidates; found {window}")
+
+
 def mode_window_mask(prob: Array, window: int) -> Array:
     """(B, D, H, W) bool: candidates within ``window`` places of a most probable one along
     axis 1 (no gradient; see the module docstring)."""
@@ -58,12 +67,9 @@ def estimate_inverse(prob: Array, inv_cand: Array, estimate: str = "mean",
     """Inverse distance (B, H, W) from probabilities (B, D, H, W) over candidates whose
     inverses are ``inv_cand`` (D,): their expectation (``'mean'``) or the sub-pixel mode
     (``'mode'``: the expectation within ``window`` candidates of the most probable one)."""
+    check_estimate(estimate, window)
     if estimate == "mean":
         return jnp.einsum("bdhw,d->bhw", prob, inv_cand)
-    if estimate != "mode":
-        raise ValueError(f"estimate must be one of {ESTIMATES}; found {estimate!r}")
-    if window < 0:
-        raise ValueError(f"the mode's window must be >= 0 candidates; found {window}")
     kept = jnp.where(mode_window_mask(prob, window), prob, 0.0)
     return jnp.einsum("bdhw,d->bhw", kept, inv_cand) / jnp.sum(kept, axis=1)
 

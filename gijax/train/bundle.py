@@ -51,20 +51,15 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
     """
     from flax import nnx
 
-    _check_estimate(estimate)
+    from gijax.nn.regressor import check_estimate
+
+    if estimate is not None:
+        check_estimate(estimate)
     figures = _checked_figures(figures)
     out_dir = check_replaceable(out_dir, (config_file, *inputs))
     weights = flatten_variables(nnx.to_pure_dict(nnx.state(model)))
     return _write(weights, config_file, out_dir, provenance, candidates, inputs, figures,
                   estimate)
-
-
-def _check_estimate(estimate: str | None) -> None:
-    """ValueError (one line) unless ``estimate`` is None or one the regressor knows."""
-    from gijax.nn.regressor import ESTIMATES
-
-    if estimate is not None and estimate not in ESTIMATES:
-        raise ValueError(f"a bundle's estimate must be one of {ESTIMATES}; found {estimate!r}")
 
 
 def _checked_figures(figures: dict | None) -> dict:
@@ -174,9 +169,11 @@ def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
     ``figures`` as :func:`save_bundle` takes them; ``estimate`` ('mean' or 'mode', when given)
     is how the bundle reads its distances, whatever the run's configuration says (the weights
     are the same either way: :mod:`gijax.nn.regressor`)."""
+    from gijax.nn.regressor import check_estimate
     from gijax.store.runs import load_for_inference
 
-    _check_estimate(estimate)               # before the checkpoint is read
+    if estimate is not None:
+        check_estimate(estimate)            # before the checkpoint is read
     run_dir = Path(run_dir)
     model, _, cand = load_for_inference(run_dir, which=which)
     return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance, candidates=cand,
