@@ -82,6 +82,7 @@ from gijax.nn.regressor import ESTIMATES  # noqa: E402
 NAME = "bundle_model"
 LONG_NAME = "long_training"
 CELLS_NAME = "cells_training"
+SKIP_NAME = "skip_training"
 MODEL = "G16VV"
 RING = "ring5-0.5m"
 TESTS = ("paper-test1", "paper-test2", "paper-test3", RING)
@@ -148,7 +149,16 @@ CELLS_RECIPES = {
     "cpu": Recipe(**MIXTURES["cpu"], steps=6000, batch=8, lr=1e-4, warmup=200, val_every=250,
                   ckpt_every=100),
 }
-RECIPE_KINDS = ("finetune", "long", "cells")
+# The fine bundle of a design (its fine-cell training, read by the sub-pixel mode) gains the
+# matching cost's skip to the logits (gijax.nn.matching_skip, zero at the start: the same
+# outputs) and is fine-tuned with it on the same mixture, validated by the mode it is read by.
+SKIP_RECIPES = {
+    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
+                    ckpt_every=2),
+    "cpu": Recipe(**MIXTURES["cpu"], steps=3000, batch=8, lr=1e-4, warmup=100, val_every=250,
+                  ckpt_every=100),
+}
+RECIPE_KINDS = ("finetune", "long", "cells", "skip")
 # How a bundle reads its distances (``--estimate``; gijax.nn.regressor), in the provenance.
 ESTIMATE_WORDS = {"mean": "soft-argmax (the mean over the candidates)",
                   "mode": "sub-pixel mode (the mean within two candidates of the most probable "
@@ -260,18 +270,21 @@ class Plan:
 
     kind: str = "finetune"             # one of RECIPE_KINDS
     design: str = DEFAULT_DESIGN       # a CPU-scale preset name
-    pack: Optional[Path] = None        # the resume pack folder (long and cells)
+    pack: Optional[Path] = None        # the resume pack folder (long, cells and skip)
 
     @property
     def recipe_table(self) -> dict:
-        return {"finetune": RECIPES, "long": LONG_RECIPES, "cells": CELLS_RECIPES}[self.kind]
+        return {"finetune": RECIPES, "long": LONG_RECIPES, "cells": CELLS_RECIPES,
+                "skip": SKIP_RECIPES}[self.kind]
 
     def recipe(self, scale: Scale) -> Recipe:
         """The plan's recipe at ``scale``; the fine-cell training starts from the design's
-        bundle (what ``--ckpt`` names it by) except at the smoke scale."""
+        bundle (what ``--ckpt`` names it by), the skip's from the design's fine bundle, except
+        at the smoke scale."""
         recipe = self.recipe_table[scale.name]
-        if self.kind == "cells" and not scale.tiny:
-            recipe = dataclasses.replace(recipe, init_from=self.design)
+        if self.kind in ("cells", "skip") and not scale.tiny:
+            start = self.design if self.kind == "cells" else f"{self.design}-fine"
+            recipe = dataclasses.replace(recipe, init_from=start)
         return recipe
 
 
@@ -284,13 +297,13 @@ def design_preset(scale: Scale, design: str) -> str:
 
 
 def run_folder(work: Path, scale: Scale, plan: Plan = FINETUNE) -> Path:
-    if plan.kind in ("long", "cells"):
+    if plan.kind in ("long", "cells", "skip"):
         return work / "runs" / f"{plan.kind}-{design_preset(scale, plan.design)}"
     return work / "runs" / f"bundle-{preset_name(scale, MODEL)}"
 
 
 def pack_folder(scale: Scale, design: str, out: Path, kind: str = "long") -> Path:
-    """The resume pack folder of the ``kind`` ('long' or 'cells') training of ``design``:
+    """The resume pack folder of the ``kind`` ('long', 'cells' or 'skip') training of ``design``:
     committed under experiments/packs/ at the cpu scale; the other scales keep theirs with the
     output."""
     if scale.name == "cpu":
@@ -318,6 +331,9 @@ def train_config(scale: Scale, recipe: Recipe, seed: int, plan: Plan = FINETUNE)
         preset, over = design_preset(scale, plan.design), design_overrides(scale, plan.design)
     elif plan.kind == "cells":
         preset, over = design_preset(scale, plan.design), cell_overrides(scale, plan.design)
+    elif plan.kind == "skip":
+        preset = design_preset(scale, plan.design)
+        over = {**cell_overrides(scale, plan.design), "matching_skip": True, "estimate": "mode"}
     else:
         preset, over = preset_name(scale, MODEL), model_overrides(scale, MODEL)
     return TrainConfig(preset=preset, model_overrides=over, lr=recipe.lr,
@@ -628,6 +644,8 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"{recipe.calibration_deg:g} deg, starting from {start}"
                           + (" with its cost volume at the output's resolution (one cost cell "
                              "per output pixel)" if plan.kind == "cells" else "")
+                          + (", adding the matching cost's skip to the logits (zero at the "
+                             "start)" if plan.kind == "skip" else "")
                           + (f"; read by its {ESTIMATE_WORDS[estimate]}" if estimate else "")),
            "initialised_from": init,
            "limitations": LIMITATIONS,
@@ -679,7 +697,8 @@ def main(argv=None) -> int:
     add_common_arguments(parser, NAME)
     parser.add_argument("--previous", default=None,
                         help="the bundle evaluated beside the new one (default at the cpu "
-                             "scale: the packaged bundle of --design for --recipe cells, the "
+                             "scale: the packaged bundle of --design for --recipe cells, its "
+                             "fine bundle for --recipe skip, the "
                              "packaged G16VV-cpu otherwise; none at other scales; 'none': skip)")
     parser.add_argument("--publish", default=None, metavar="DIR",
                         help="write the new bundle, its provenance and figures to DIR")
@@ -689,9 +708,11 @@ def main(argv=None) -> int:
                              "random weights for LONG_RECIPES' steps, in pieces, resuming from "
                              "its committed pack; 'cells': --design's bundle fine-tuned with "
                              "its cost volume at the output's resolution for CELLS_RECIPES' "
-                             "steps, in pieces like 'long'")
+                             "steps, in pieces like 'long'; 'skip': --design's fine bundle "
+                             "(<design>-fine) with the matching cost's skip to the logits, "
+                             "fine-tuned for SKIP_RECIPES' steps, in pieces like 'long'")
     parser.add_argument("--design", default=DEFAULT_DESIGN, metavar="PRESET",
-                        help=f"the CPU-scale design of --recipe long or cells (default "
+                        help=f"the CPU-scale design of --recipe long, cells or skip (default "
                              f"{DEFAULT_DESIGN}; the designs are compared by "
                              f"experiments/design_comparison.py)")
     parser.add_argument("--estimate", choices=ESTIMATES, default=None,
@@ -709,8 +730,8 @@ def main(argv=None) -> int:
         parser.error(f"--scale {args.scale}: the {args.recipe} recipe has scales "
                      f"{sorted(recipes)}")
     if args.recipe == "finetune" and args.design != DEFAULT_DESIGN:
-        parser.error("--design chooses the design of --recipe long or cells (the fine-tuning "
-                     f"recipe trains the bundled {DEFAULT_DESIGN})")
+        parser.error("--design chooses the design of --recipe long, cells or skip (the "
+                     f"fine-tuning recipe trains the bundled {DEFAULT_DESIGN})")
     from gijax.nn.presets import get_preset
 
     get_preset(args.design)                       # one line naming the valid presets
@@ -719,7 +740,8 @@ def main(argv=None) -> int:
     scale = SCALES[args.scale]
     # The long and fine-cell trainings report in their own sections; the fine-tuning recipe in
     # the bundle's.
-    name = {"finetune": NAME, "long": LONG_NAME, "cells": CELLS_NAME}[args.recipe]
+    name = {"finetune": NAME, "long": LONG_NAME, "cells": CELLS_NAME,
+            "skip": SKIP_NAME}[args.recipe]
     work, out, results = resolve_paths(args, name)
     if results is not None:
         check_results_section(results, name)
@@ -738,8 +760,9 @@ def main(argv=None) -> int:
     durations["training"] = time.perf_counter() - t0
     run = run_folder(work, scale, plan)
     models = {"new bundle": run}
-    default_previous = (f"gijax/assets/{plan.design}" if plan.kind == "cells"
-                        else "gijax/assets/G16VV-cpu")
+    default_previous = {"cells": f"gijax/assets/{plan.design}",
+                        "skip": f"gijax/assets/{plan.design}-fine"}.get(
+                            plan.kind, "gijax/assets/G16VV-cpu")
     previous = args.previous or (default_previous if scale.name == "cpu" else "none")
     if previous != "none":
         models["previous bundle"] = Path(previous)
@@ -767,7 +790,10 @@ def main(argv=None) -> int:
     how = {"long": "from random weights", "finetune": "fine-tuned",
            "cells": ("fine-tuned from its bundle with the cost volume at the output's "
                      "resolution" if recipe.init_from else "from random weights with the cost "
-                     "volume at the output's resolution")}[plan.kind]
+                     "volume at the output's resolution"),
+           "skip": ("fine-tuned from its fine bundle with the matching cost's skip to the "
+                    "logits, validated by the sub-pixel mode" if recipe.init_from else
+                    "from random weights with the matching cost's skip to the logits")}[plan.kind]
     md = "\n\n".join([
         f"{MODEL if plan.kind == 'finetune' else plan.design} trained on the mixture "
         f"({len(mixture_roles(recipe))} datasets of "
@@ -783,7 +809,7 @@ def main(argv=None) -> int:
         *(f"![{t}]({figures[t].name})" for t in TESTS),
         "## Provenance", provenance_markdown(prov)])
     titles = {NAME: "The bundled model", LONG_NAME: "The long training",
-              CELLS_NAME: "The fine-cell training"}
+              CELLS_NAME: "The fine-cell training", SKIP_NAME: "The matching skip"}
     save_table(out, titles[name], md, doc)
     if results is not None:
         publish_section(results, name, md, figures.values())

@@ -52,7 +52,7 @@ from gijax.geometry.panorama import Panorama
 from gijax.geometry.panorama_frame import coverage_of, panorama_of
 from gijax.geometry.rig import Rig
 from gijax.nn import (Conv3D, FeatureExtractor, ModelConfig, get_preset, make_cost_volume,
-                      make_unet, param_count, regress)
+                      make_matching_skip, make_unet, param_count, regress)
 from gijax.nn.refine import GuidedRefinement, colour_guide
 from gijax.sweep.grids import (SurrogateMaps, SweepGrids, cost_panorama, fisheye_surrogates,
                                match_grey, sweep_colours, sweep_features, sweep_grids)
@@ -181,6 +181,7 @@ class OmniStereoNet(nnx.Module):
         self.features = FeatureExtractor(config, rngs)
         self.cost_volume = make_cost_volume(config, rngs)
         self.unet = make_unet(config, rngs)
+        self.matching_skip = make_matching_skip(config, rngs)
         self.refine = GuidedRefinement(config.num_candidates, rngs) if config.refine else None
 
     def __call__(self, surrogates: Array, masks: Array, grids: SweepGrids) -> dict:
@@ -202,7 +203,7 @@ class OmniStereoNet(nnx.Module):
         sampled, cam_valid = self.sweep(feats, masks, grids)
         matching = (self.matching(surrogates, masks, grids)
                     if cfg.matching_cost != "none" else None)
-        logits = self.unet_logits(self.build_cost_volume(sampled, cam_valid, matching))
+        logits = self.unet_logits(self.build_cost_volume(sampled, cam_valid, matching), matching)
         out = self.regress(logits, grids.candidates.astype(dtype))
         if cfg.refine:
             out.update(self.refined(surrogates, masks, grids, out))
@@ -253,9 +254,17 @@ class OmniStereoNet(nnx.Module):
         return self.cost_volume(sampled, valid.astype(sampled.dtype), matching)
 
     @_stage
-    def unet_logits(self, volume: Array) -> Array:
-        """The cost volume (B, D, h, w, unet_in) -> the U-Net's logits (B, D, h, w)."""
-        return self.unet(volume)
+    def unet_logits(self, volume: Array, matching: Array | None = None) -> Array:
+        """The cost volume (B, D, h, w, unet_in) -> the logits (B, D, h, w): the U-Net's, plus
+        the matching cost's skip (B, D, h, w, 1 -> :mod:`gijax.nn.matching_skip`) for a model
+        built with ``matching_skip``."""
+        logits = self.unet(volume)
+        if self.matching_skip is None:
+            return logits
+        if matching is None:
+            raise ValueError(f"model {self.config.name!r} adds its matching cost to the "
+                             f"logits (matching_skip) and needs it here")
+        return logits + self.matching_skip(matching).astype(logits.dtype)
 
     @_stage
     def regress(self, logits: Array, candidates: Array) -> dict:
@@ -366,7 +375,9 @@ def _count(config: ModelConfig) -> tuple[tuple[str, int], ...]:
     counts = {
         "features": param_count(model.features),
         "cost": param_count(model.cost_volume),
-        "unet": param_count(model.unet),
+        # The matching skip's 27 weights count with the U-Net, whose logits they add to.
+        "unet": param_count(model.unet) + (param_count(model.matching_skip)
+                                           if model.matching_skip is not None else 0),
     }
     counts["total"] = sum(counts.values())
     return tuple(counts.items())

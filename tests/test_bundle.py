@@ -310,3 +310,49 @@ def test_a_bundle_averaged_from_packs_holds_the_mean_of_their_variables(tmp_path
         average_variables([want[0], fewer], ["a", "b"])
     with pytest.raises(ValueError, match="at least one"):
         average_variables([])
+
+
+def test_a_bundle_without_the_matching_skip_starts_a_run_that_adds_it(tmp_path):
+    """``init_from`` a bundle of a matching-cost network into a run with ``matching_skip``:
+    every shared parameter and BatchNorm statistic is the bundle's, the skip's kernel is the
+    run's own zero start; a run that changes anything else (here the U-Net's width) is still
+    refused naming the field, and a skip cannot be dropped (a bundle with one into a run
+    without it)."""
+    from gijax.train.run_folder import initial_variables
+
+    cfg, config_file = _run_config(tmp_path, matching_cost="zncc")
+    source = create_model(cfg.model_config(), seed=3)
+    nnx.update(source, jax_tree_scale(nnx.state(source, nnx.Param), 1.5))
+    bundle = save_bundle(source, config_file, tmp_path / "bundle")
+
+    grown = dataclasses.replace(cfg.model_config(), matching_skip=True)
+    fresh = create_model(grown, seed=5)
+    fresh.train()
+    _, params, rest = nnx.split(fresh, nnx.Param, ...)
+    run = TrainConfig(preset="G16VV-cpu", init_from=str(bundle))
+    got_params, got_rest = initial_variables(run, grown, params, rest)
+    got = (nnx.to_pure_dict(got_params), nnx.to_pure_dict(got_rest))
+    skip = got[0].pop("matching_skip")
+    assert not np.any(np.asarray(skip["conv"]["kernel"]))
+    assert skip["conv"]["kernel"].shape == (3, 3, 3, 1, 1)
+    source.train()
+    _, *want = nnx.split(source, nnx.Param, ...)
+    flat_w, flat_g = (np.concatenate([np.ravel(x) for x in _leaves(t)])
+                      for t in ([nnx.to_pure_dict(s) for s in want], got))
+    assert flat_w.size > 1000
+    np.testing.assert_array_equal(flat_w, flat_g)
+
+    wider = dataclasses.replace(grown, unet_base=8)
+    wide = create_model(wider, seed=5)
+    _, p, r = nnx.split(wide, nnx.Param, ...)
+    with pytest.raises(ValueError, match=r"unet_base \(its 4, this run's 8\)"):
+        initial_variables(run, wider, p, r)
+    with_skip = save_bundle(create_model(grown, seed=1), config_file, tmp_path / "skip")
+    # The run config copied in names no skip; the bundle's config must, for this direction.
+    doc = json.loads((with_skip / "config.json").read_text())
+    doc["model"]["matching_skip"] = True
+    (with_skip / "config.json").write_text(json.dumps(doc))
+    _, p, r = nnx.split(create_model(cfg.model_config(), seed=5), nnx.Param, ...)
+    with pytest.raises(ValueError, match=r"matching_skip \(its True, this run's False\)"):
+        initial_variables(TrainConfig(preset="G16VV-cpu", init_from=str(with_skip)),
+                          cfg.model_config(), p, r)

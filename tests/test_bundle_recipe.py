@@ -2,6 +2,7 @@
 checks. The script end to end was run at the smoke scale by hand (about 3 min on 2 cores,
 nearly all XLA compilation); these are its parts that decide what the bundle is judged by."""
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -194,6 +195,36 @@ def test_the_cells_recipe_fine_tunes_the_designs_bundle_at_one_cell_per_output_p
     small = B.train_config(smoke, tiny, 0, tiny_plan).model_config()
     assert tuple(small.cost_hw) == tuple(small.output_hw) and small.output_stride == 1
     assert small.unet_base < base.unet_base                          # the smoke shrinking
+
+
+def test_the_skip_recipe_grows_the_fine_bundle_a_matching_skip_and_reads_it_by_the_mode(
+        tmp_path):
+    """``--recipe skip``: the fine-cell overrides plus ``matching_skip`` and the mode estimate,
+    started from the design's fine bundle at the cpu scale (random weights at the smoke
+    scale), its own run and committed pack folders, the recorded command carrying all of it;
+    the configuration it builds is the fine bundle's with the skip (what init_from accepts)."""
+    from gijax.store import load_model
+
+    cpu, smoke = scales.SCALES["cpu"], scales.SCALES["smoke"]
+    design = "G16VV-cpu-zncc"
+    plan = B.Plan("skip", design, B.pack_folder(cpu, design, tmp_path, "skip"))
+    assert plan.pack == Path(B.__file__).resolve().parent / "packs" / f"skip-{design}"
+    recipe = plan.recipe(cpu)
+    assert recipe.init_from == f"{design}-fine" and recipe.steps == 3000
+    cfg = B.train_config(cpu, recipe, 0, plan)
+    assert cfg.model_overrides == {"cost_hw": [32, 128], "output_stride": 1,
+                                   "matching_skip": True, "estimate": "mode"}
+    _, fine, _ = load_model(recipe.init_from)
+    assert cfg.model_config() == dataclasses.replace(fine, matching_skip=True)
+    argv = [str(a) for a in B.train_argv(tmp_path, cpu, recipe, 0, [], plan)]
+    assert argv[argv.index("--out") + 1] == str(tmp_path / "runs" / f"skip-{design}")
+    assert argv[argv.index("--init-from") + 1] == f"{design}-fine"
+    overrides = [argv[i + 1] for i, a in enumerate(argv) if a == "--override"]
+    assert overrides == ["cost_hw=[32,128]", "output_stride=1", "matching_skip=true",
+                         'estimate="mode"']
+    tiny_plan = B.Plan("skip", design, B.pack_folder(smoke, design, tmp_path, "skip"))
+    assert tiny_plan.recipe(smoke).init_from is None
+    assert B.train_config(smoke, tiny_plan.recipe(smoke), 0, tiny_plan).model_config().matching_skip
 
 
 def test_a_run_resuming_from_its_pack_on_a_new_machine_keeps_its_start_record(tmp_path):

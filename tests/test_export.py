@@ -6,6 +6,7 @@ import json
 import types
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import onnx
 import onnxruntime as ort
@@ -18,7 +19,7 @@ from gijax.export.onnx_export import (OUTPUTS, export_onnx, jax_reference, legal
 from gijax.export.ort_predict import OnnxPredictor
 from gijax.export.trt_compat import check_model
 from gijax.io.rigfile import load_rig
-from gijax.model import create_model
+from gijax.model import create_model, with_estimate
 from gijax.nn.presets import get_preset
 
 # The smallest network with every stage (variance cost volume, any camera count).
@@ -138,16 +139,22 @@ def test_rig_as_input_second_rig_equals_fresh_baked_export(setup):
 
 
 def test_matching_cost_model_exports_and_matches_jax(tmp_path):
-    """The bundled design's parts: the matching-cost channel (grey sampling, cell ZNCC), the
-    cost volume at the output's resolution and the sub-pixel mode export at opset 17 with sums
+    """The bundled design's parts: the matching-cost channel (grey sampling, cell ZNCC) and its
+    skip to the logits, the cost volume at the output's resolution and the sub-pixel mode export at opset 17 with sums
     only (ReduceMean / ReduceMin would need axes attributes; the mode's window is a maximum and
     comparisons, no ArgMax), match JAX and stay TensorRT-clean."""
     cfg = dataclasses.replace(TINY, name="tiny-zncc", matching_cost="zncc", matching_samples=2,
-                              output_stride=1, output_hw=TINY.cost_hw, estimate="mode")
+                              output_stride=1, output_hw=TINY.cost_hw, estimate="mode",
+                              matching_skip=True)
     rig = load_rig("paper-train")
     model = create_model(cfg, seed=1)
     images, masks = rendered_inputs(cfg, rig, seed=3)
+    without_skip = jax_reference(model, rig, images, masks, CAND)
+    # The skip as trained, not at its zero start, so that the export must carry it.
+    model.matching_skip.conv.kernel[...] = jnp.asarray(
+        np.random.default_rng(2).normal(0.0, 0.3, (3, 3, 3, 1, 1)), jnp.float32)
     ref = jax_reference(model, rig, images, masks, CAND)
+    assert np.abs(ref["inv_distance"] - without_skip["inv_distance"]).max() > 1e-2
     exported = export_onnx(model, rig, CAND, tmp_path / "zncc.onnx")
     out = OnnxPredictor(exported.path, providers=["CPUExecutionProvider"]).predict(
         rig, images[0], masks[0])
@@ -157,8 +164,7 @@ def test_matching_cost_model_exports_and_matches_jax(tmp_path):
     assert report.op_counts.get("ReduceMean", 0) == 0
     assert report.op_counts.get("ArgMax", 0) == 0
     # The same weights read by the mean differ: what was exported is the mode.
-    mean = jax_reference(create_model(dataclasses.replace(cfg, estimate="mean"), seed=1), rig,
-                         images, masks, CAND)
+    mean = jax_reference(with_estimate(model, "mean"), rig, images, masks, CAND)
     assert np.abs(out["inv_distance"] - mean["inv_distance"][0]).max() > 1e-2
 
 

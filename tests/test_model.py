@@ -423,6 +423,58 @@ def test_guided_refinement_starts_as_the_identity_and_trains_only_itself():
     assert all(np.abs(g).max() == 0 for k, g in flat.items() if not k.startswith("refine/"))
 
 
+def test_matching_skip_starts_as_the_identity_and_adds_the_convolved_cost():
+    """``matching_skip=True``: with the zero kernel it starts from, the network's outputs are
+    those of the same weights without it (bit for bit); with a kernel set, the logits move by
+    ``SKIP_GAIN`` times the 3x3x3 correlation of the matching cost with it (zero padding),
+    checked against a numpy sum over the 27 taps; at the zero start the volume loss's gradient
+    reaches the kernel (finite, non-zero). A model without a matching cost cannot have one."""
+    from gijax.nn.matching_skip import SKIP_GAIN
+
+    base_cfg = dataclasses.replace(TINY_VAR, name="tiny-zncc", matching_cost="zncc")
+    cfg = dataclasses.replace(base_cfg, name="tiny-skip", matching_skip=True)
+    base = create_model(base_cfg, seed=2)
+    model = create_model(cfg, seed=9)
+    nnx.update(model, nnx.state(base))
+    for m in (base, model):
+        m.eval()
+    pos = tri_positions()
+    rig = rig_from(pos, pos[0])
+    sur, m = inputs(3, 2)
+    cand = jnp.asarray(G8)
+    want = forward(base, sur, m, rig, cand)
+    got = forward(model, sur, m, rig, cand)
+    for key in ("logits", "inv_distance", "prob"):
+        np.testing.assert_array_equal(np.asarray(got[key]), np.asarray(want[key]))
+
+    kernel = np.random.default_rng(3).normal(size=(3, 3, 3, 1, 1)).astype(np.float32)
+    model.matching_skip.conv.kernel[...] = jnp.asarray(kernel)
+    moved = forward(model, sur, m, rig, cand)
+    cost = np.asarray(nnx.jit(lambda mod: mod.matching(sur, m, model_grids(cfg, rig, cand)))(
+        model))[..., 0]                                              # (B, D, h, w)
+    padded = np.pad(cost, ((0, 0), (1, 1), (1, 1), (1, 1)))
+    d, h, w = cost.shape[1:]
+    expect = sum(kernel[i, j, k, 0, 0] * padded[:, i:i + d, j:j + h, k:k + w]
+                 for i in range(3) for j in range(3) for k in range(3))
+    np.testing.assert_allclose(np.asarray(moved["logits"]) - np.asarray(want["logits"]),
+                               SKIP_GAIN * expect, rtol=1e-4, atol=1e-4)
+    assert np.abs(expect).max() > 0.1
+
+    model.matching_skip.conv.kernel[...] = jnp.zeros((3, 3, 3, 1, 1))
+    target = jnp.full((1, *cfg.output_hw), 2.0)
+    label_ok = jnp.ones((1, *cfg.output_hw), bool)
+    graphdef, params, rest = nnx.split(model, nnx.Param, ...)
+
+    def loss(p):
+        out = run(nnx.merge(graphdef, p, rest), sur, m, rig, cand)
+        return volume_loss(out["prob"], target, label_ok, cand)
+
+    grad = np.asarray(jax.jit(jax.grad(loss))(params)["matching_skip"]["conv"]["kernel"][...])
+    assert np.all(np.isfinite(grad)) and np.abs(grad).max() > 1e-6
+    with pytest.raises(ValueError, match="matching_skip"):
+        dataclasses.replace(TINY_VAR, matching_skip=True)
+
+
 def test_every_stage_names_its_operations_forward_and_backward():
     # The step profile (benchmarks/bench_step_profile.py) attributes XLA instructions to the
     # network's stages by these scopes: each stage's operations, and their transposes in the
@@ -430,7 +482,7 @@ def test_every_stage_names_its_operations_forward_and_backward():
     from gijax.model import STAGES
 
     cfg = dataclasses.replace(TINY_VAR, name="tiny-all-stages", refine=True,
-                              matching_cost="zncc")
+                              matching_cost="zncc", matching_skip=True)
     model = create_model(cfg, seed=0)
     pos = tri_positions()
     rig = rig_from(pos, pos[0])

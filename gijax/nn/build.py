@@ -1,5 +1,6 @@
 """Build the config-chosen learned parts of a network from a :class:`ModelConfig`: the
-cost-volume builder chosen by ``config.cost_volume`` and the :class:`UNet3D` (the whole network,
+cost-volume builder chosen by ``config.cost_volume``, the :class:`UNet3D` and the optional
+:class:`MatchingSkip` (the whole network,
 and its parameter counts, are :mod:`gijax.model`'s)."""
 
 from __future__ import annotations
@@ -7,6 +8,7 @@ from __future__ import annotations
 from flax import nnx
 
 from gijax.nn.cost_volume import ConcatCostVolume, VarianceCostVolume
+from gijax.nn.matching_skip import MatchingSkip
 from gijax.nn.presets import ModelConfig
 from gijax.nn.unet3d import UNet3D
 
@@ -22,3 +24,8 @@ def make_cost_volume(config: ModelConfig, rngs: nnx.Rngs) -> nnx.Module:
 
 def make_unet(config: ModelConfig, rngs: nnx.Rngs) -> UNet3D:
     return UNet3D(config.unet_in, config.unet_base, rngs, conv3d=config.conv3d)
+
+
+def make_matching_skip(config: ModelConfig, rngs: nnx.Rngs) -> MatchingSkip | None:
+    """The matching cost's path to the logits when ``config.matching_skip``, else None."""
+    return MatchingSkip(rngs, conv3d=config.conv3d) if config.matching_skip else None

@@ -53,6 +53,10 @@ OUTPUT_STRIDES = (1, 2)
 # by one after the configuration.
 WEIGHTLESS_FIELDS = frozenset({"name", "conv3d", "cost_hw", "output_hw", "output_stride",
                                "panorama", "image_scale", "loss", "estimate", "mode_window"})
+# Fields that add parameters starting as the identity (a zero-initialised path added to the
+# logits), with the value that leaves them out: a trained network without them initialises one
+# with them (``gijax train --init-from``), whose outputs are then the same until it trains.
+GROWN_FIELDS = {"matching_skip": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +84,9 @@ class ModelConfig:
     (:mod:`gijax.sweep.matching`: per candidate and cell, the mean zero-mean normalised
     cross-correlation of the cameras' grey levels at ``matching_samples x matching_samples``
     sub-cell points, read from the surrogate images; ``G16VV-cpu-zncc``); ``'none'`` (the
-    paper's) leaves it out.
+    paper's) leaves it out. ``matching_skip`` (with a matching cost only) also adds that cost
+    to the U-Net's logits through a zero-initialised 3x3x3 conv (:mod:`gijax.nn.matching_skip`:
+    a path at the cost's own resolution, for structures the U-Net's coarse stages smooth away).
     ``estimate`` is how the distance is read from the probabilities over the candidates
     (:mod:`gijax.nn.regressor`): ``'mean'`` (the paper's soft-argmax) or ``'mode'``, the
     expectation within ``mode_window`` candidates of the most probable one (the sub-pixel
@@ -133,6 +139,7 @@ class ModelConfig:
     matching_samples: int = 4
     estimate: str = "mean"
     mode_window: int = 2
+    matching_skip: bool = False
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -190,6 +197,11 @@ class ModelConfig:
             fail("d_min/d_max", "0 < d_min < d_max", (self.d_min, self.d_max))
         if not self.image_scale > 0:
             fail("image_scale", "a positive factor", self.image_scale)
+        if self.matching_skip not in (False, True):
+            fail("matching_skip", "true or false", self.matching_skip)
+        if self.matching_skip and self.matching_cost == "none":
+            fail("matching_skip", "false for a model without a matching cost (matching_cost "
+                 "'none')", self.matching_skip)
         if self.mode_window < 0:
             fail("mode_window", "a non-negative number of candidates", self.mode_window)
 

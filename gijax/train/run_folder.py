@@ -154,12 +154,13 @@ def newer_pack(run_dir: Path, config: TrainConfig, mc: ModelConfig, candidates,
 
 def initial_variables(config: TrainConfig, mc: ModelConfig, params, rest):
     """``(params, rest)`` of the model ``config.init_from`` names, checked against this run's
-    network ``mc``: same configuration (up to the conv lowering, resolution, panorama coverage and
-    input scale) and variable
-    shapes as ``params`` and ``rest``."""
+    network ``mc``: same configuration (up to the conv lowering, resolution, panorama coverage,
+    input scale and how the distance is read) and variable shapes as ``params`` and ``rest``.
+    A part this run adds that starts as the identity (:data:`gijax.nn.presets.GROWN_FIELDS`,
+    off in the model it starts from) keeps its initial values from ``params`` / ``rest``."""
     from flax import nnx
 
-    from gijax.nn.presets import WEIGHTLESS_FIELDS
+    from gijax.nn.presets import GROWN_FIELDS, WEIGHTLESS_FIELDS
     from gijax.store import load_model
     from gijax.store.runs import check_param_shapes, named_shapes
 
@@ -167,16 +168,38 @@ def initial_variables(config: TrainConfig, mc: ModelConfig, params, rest):
     model, found, _ = load_model(spec)
     same = {f.name: getattr(mc, f.name) for f in dataclasses.fields(found)
             if f.name in WEIGHTLESS_FIELDS}
+    grown = [name for name, off in GROWN_FIELDS.items()
+             if getattr(found, name) == off and getattr(mc, name) != off]
+    same.update({name: getattr(mc, name) for name in grown})
     if dataclasses.replace(found, **same) != mc:
         diff = {f.name: (getattr(found, f.name), getattr(mc, f.name))
                 for f in dataclasses.fields(found) if f.name not in WEIGHTLESS_FIELDS
-                and getattr(found, f.name) != getattr(mc, f.name)}
+                and f.name not in grown and getattr(found, f.name) != getattr(mc, f.name)}
         raise ValueError(f"init_from {spec!r}: its network configuration differs from this "
                          f"run's in " + ", ".join(f"{k} (its {a!r}, this run's {b!r})"
                                                   for k, (a, b) in diff.items()))
     model.train()
     _, new_params, new_rest = nnx.split(model, nnx.Param, ...)
+    out = []
     for name, new, old in (("parameters", new_params, params), ("variables", new_rest, rest)):
-        check_param_shapes(Path(str(spec)), named_shapes(new), named_shapes(old),
+        # The grown parts are modules named after their field (OmniStereoNet.matching_skip).
+        kept = {k: v for k, v in named_shapes(old).items() if k.split(".")[0] in grown}
+        expected = {k: v for k, v in named_shapes(old).items() if k not in kept}
+        check_param_shapes(Path(str(spec)), named_shapes(new), expected,
                            f"{config.preset} ({name})")
-    return new_params, new_rest
+        if kept:
+            merged = nnx.to_pure_dict(old)
+            _overwrite(merged, nnx.to_pure_dict(new))
+            nnx.replace_by_pure_dict(old, merged)
+            new = old
+        out.append(new)
+    return tuple(out)
+
+
+def _overwrite(into: dict, values: dict) -> None:
+    """``into`` with every leaf of the nested dict ``values`` written over it."""
+    for key, value in values.items():
+        if isinstance(value, dict):
+            _overwrite(into[key], value)
+        else:
+            into[key] = value

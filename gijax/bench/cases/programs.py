@@ -83,10 +83,12 @@ def stage_programs(cfg: ModelConfig, seed: int = 0, batch: int = 1,
         return sampled, valid, model.matching(sur, masks, model_grids(cfg, rig, cand))
 
     def cost_volume(state, sampled, valid, matching=None):
-        return nnx.merge(graphdef, state).build_cost_volume(sampled, valid, matching)
+        volume = nnx.merge(graphdef, state).build_cost_volume(sampled, valid, matching)
+        # A matching skip reads the cost again at the logits: it passes through.
+        return (volume, matching) if cfg.matching_skip else volume
 
-    def unet(state, volume):
-        return nnx.merge(graphdef, state).unet_logits(volume)
+    def unet(state, volume, matching=None):
+        return nnx.merge(graphdef, state).unet_logits(volume, matching)
 
     def regression(state, logits):
         return nnx.merge(graphdef, state).regress(logits, cand)["inv_distance"]
