@@ -155,7 +155,10 @@ CELLS_RECIPES = {
 SKIP_RECIPES = {
     "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
                     ckpt_every=2),
-    "cpu": Recipe(**MIXTURES["cpu"], steps=3000, batch=8, lr=1e-4, warmup=100, val_every=250,
+    # A gentle rate: restarting the trained network at the fine-cell training's 1e-4 raised
+    # its validation MAE (mode) from 0.0155 to 0.0158 in 250 steps. The skip's own weights
+    # still move fast enough through its gain (gijax.nn.matching_skip.SKIP_GAIN).
+    "cpu": Recipe(**MIXTURES["cpu"], steps=1000, batch=8, lr=3e-5, warmup=50, val_every=250,
                   ckpt_every=100),
 }
 RECIPE_KINDS = ("finetune", "long", "cells", "skip")

@@ -210,7 +210,7 @@ def test_the_skip_recipe_grows_the_fine_bundle_a_matching_skip_and_reads_it_by_t
     plan = B.Plan("skip", design, B.pack_folder(cpu, design, tmp_path, "skip"))
     assert plan.pack == Path(B.__file__).resolve().parent / "packs" / f"skip-{design}"
     recipe = plan.recipe(cpu)
-    assert recipe.init_from == f"{design}-fine" and recipe.steps == 3000
+    assert recipe.init_from == f"{design}-fine" and recipe.steps == 1000 and recipe.lr == 3e-5
     cfg = B.train_config(cpu, recipe, 0, plan)
     assert cfg.model_overrides == {"cost_hw": [32, 128], "output_stride": 1,
                                    "matching_skip": True, "estimate": "mode"}

@@ -11,9 +11,9 @@ regression.
 
 The conv's output is multiplied by a fixed gain, :data:`SKIP_GAIN`: Adam moves each weight by
 about the learning rate per step whatever its gradient's size, the logits of a trained network
-span several units where the ZNCC spans [-1, 1], and at a fine-tuning learning rate of 1e-4 an
+span several units where the ZNCC spans [-1, 1], and at a fine-tuning learning rate of 3e-5 an
 unscaled kernel would need tens of thousands of steps to pass a cost difference as a logit
-difference of one; with the gain, about five hundred.
+difference of one; with the gain, about seven hundred.
 
 Its kernel starts at zero, so a trained network without the skip gains it with its outputs
 unchanged (:data:`gijax.nn.presets.GROWN_FIELDS`), and fine-tuning decides how much of the
@@ -31,7 +31,7 @@ from gijax.nn.layers import Conv3D
 
 Array = jax.Array
 
-SKIP_GAIN = 20.0
+SKIP_GAIN = 50.0
 
 
 class MatchingSkip(nnx.Module):
