@@ -200,6 +200,7 @@ NOT_TRACED = {
     # modules themselves are checked under jit and grad in test_nn.py and test_model.py)
     "gijax.nn.build.make_cost_volume": "builds a module from a config",
     "gijax.nn.build.make_unet": "builds a module from a config",
+    "gijax.nn.build.make_matching_skip": "builds a module from a config",
     "gijax.nn.layers.batch_norm": "builds a module",
     "gijax.nn.layers.conv": "builds a module",
     "gijax.nn.layers.param_count": "Python int of a module",
