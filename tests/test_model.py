@@ -30,6 +30,12 @@ def tri_positions():
     return np.stack([np.cos(ang), np.sin(ang), np.zeros(3)], -1) * TRAIN_BASELINE / np.sqrt(3)
 
 
+def tri_rig():
+    """The 3-camera training layout, reference point at camera 0."""
+    pos = tri_positions()
+    return rig_from(pos, pos[0])
+
+
 def rig_from(positions, reference):
     cams = [synthetic_camera(64, 300.0 / 16) for _ in positions]
     return make_rig(cams, np.tile(np.eye(3), (len(positions), 1, 1)), positions, reference)
@@ -117,8 +123,7 @@ def test_output_stride_1_runs_the_same_weights_with_the_cost_volume_at_the_outpu
     fine = create_model(fine_cfg, seed=9)
     nnx.update(fine, nnx.state(variance_model))
     fine.eval()
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, m = inputs(3, 0)
     out = forward(fine, sur, m, rig, jnp.asarray(G8))
     coarse = forward(variance_model, sur, m, rig, jnp.asarray(G8))
@@ -144,8 +149,7 @@ def test_model_grids_are_the_sweep_at_the_configs_sizes():
     from gijax.sweep.grid import sweep_grid
     from gijax.sweep.grids import sweep_grids
 
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     cand = jnp.asarray(G8)
     grids = model_grids(TINY_VAR, rig, cand)
     px, ok = sweep_grid(rig, cand, Panorama.hemisphere(8, 32), Panorama.hemisphere(8, 32))
@@ -175,8 +179,7 @@ def test_fisheye_surrogates_equal_each_cameras_surrogate_image():
     from gijax.sweep.grids import fisheye_surrogates, surrogate_resampling
     from gijax.sweep.surrogate import surrogate_images
 
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     rng = np.random.default_rng(6)
     images = jnp.asarray(rng.uniform(size=(2, 3, 64, 64, 3)), jnp.float32)
     # Every camera blind on a third of its image (a rig body), another third per sample.
@@ -194,8 +197,7 @@ def test_fisheye_surrogates_equal_each_cameras_surrogate_image():
 
 
 def test_candidates_swap_without_touching_weights(variance_model):
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, m = inputs(3, 1)
     ev = (1.0 / np.linspace(2.0, 0.01, 8)).astype(np.float32)
     before = jax.tree_util.tree_map(np.asarray, nnx.state(variance_model, nnx.Param))
@@ -209,8 +211,7 @@ def test_candidates_swap_without_touching_weights(variance_model):
 
 
 def test_jit_equals_eager(variance_model):
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, _ = inputs(3, 0)
     # Unmasked: a camera counts where its sampled mask is > 0, so at a mask edge a sweep point
     # on a pixel centre flips with the last bit of its coordinate; that is not what is compared.
@@ -234,8 +235,7 @@ def test_jit_equals_eager(variance_model):
 def test_concat_model_needs_every_camera():
     model = create_model(TINY_CAT, seed=2)
     model.eval()
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, m = inputs(3, 2)
     full = forward(model, sur, jnp.ones_like(m), rig, jnp.asarray(G8))
     assert np.asarray(full["valid"]).mean() > 0.9
@@ -249,8 +249,7 @@ def test_concat_model_needs_every_camera():
 def test_every_parameter_gets_a_finite_nonzero_gradient():
     model = create_model(TINY_VAR, seed=3)
     model.train()
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, m = inputs(3, 3, batch=2)
     rng = np.random.default_rng(4)
     target = jnp.asarray(rng.uniform(0.6, 20.0, size=(2, 16, 64)).astype(np.float32))
@@ -315,8 +314,7 @@ def test_with_conv3d_copies_the_model_with_another_lowering(variance_model):
     for a, b in zip(jax.tree_util.tree_leaves(nnx.state(native)),
                     jax.tree_util.tree_leaves(nnx.state(variance_model))):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, m = inputs(3, 0)
     split = forward(variance_model, sur, m, rig, jnp.asarray(G8))   # 'auto': split on a CPU
     out = forward(native, sur, m, rig, jnp.asarray(G8))
@@ -388,8 +386,7 @@ def test_guided_refinement_starts_as_the_identity_and_trains_only_itself():
     cfg = dataclasses.replace(TINY_VAR, name="tiny-refine", refine=True)
     model = create_model(cfg, seed=2)
     model.eval()
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, m = inputs(3, 2)
     cand = jnp.asarray(G8)
     out = forward(model, sur, m, rig, cand)
@@ -438,8 +435,7 @@ def test_matching_skip_starts_as_the_identity_and_adds_the_convolved_cost():
     nnx.update(model, nnx.state(base))
     for m in (base, model):
         m.eval()
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, m = inputs(3, 2)
     cand = jnp.asarray(G8)
     want = forward(base, sur, m, rig, cand)
@@ -484,8 +480,7 @@ def test_every_stage_names_its_operations_forward_and_backward():
     cfg = dataclasses.replace(TINY_VAR, name="tiny-all-stages", refine=True,
                               matching_cost="zncc", matching_skip=True)
     model = create_model(cfg, seed=0)
-    pos = tri_positions()
-    rig = rig_from(pos, pos[0])
+    rig = tri_rig()
     sur, masks = inputs(3, 0)
     grids = model_grids(cfg, rig, jnp.asarray(G8))
     graphdef, state = nnx.split(model)
