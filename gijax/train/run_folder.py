@@ -188,18 +188,9 @@ def initial_variables(config: TrainConfig, mc: ModelConfig, params, rest):
         check_param_shapes(Path(str(spec)), named_shapes(new), expected,
                            f"{config.preset} ({name})")
         if kept:
-            merged = nnx.to_pure_dict(old)
-            _overwrite(merged, nnx.to_pure_dict(new))
-            nnx.replace_by_pure_dict(old, merged)
+            # The model's values written over this run's initial ones; the grown part, absent
+            # from the model, keeps its own.
+            nnx.replace_by_pure_dict(old, nnx.to_pure_dict(new))
             new = old
         out.append(new)
     return tuple(out)
-
-
-def _overwrite(into: dict, values: dict) -> None:
-    """``into`` with every leaf of the nested dict ``values`` written over it."""
-    for key, value in values.items():
-        if isinstance(value, dict):
-            _overwrite(into[key], value)
-        else:
-            into[key] = value
