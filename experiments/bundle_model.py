@@ -49,6 +49,12 @@ The bundled ``G16VV-cpu-zncc-fine`` is its step 6000 read by its sub-pixel mode,
 with ``--estimate mode --publish gijax/assets/G16VV-cpu-zncc-fine`` (the coarse bundle it starts
 from stays as it is). ``--estimate`` changes how the new bundle reads its probabilities, not its
 weights; it is evaluated and published so.
+
+The doubled mixture (``--recipe more``) fine-tunes the fine bundle on the mixture and a second
+draw of it (:data:`MORE_RECIPES`, ``Recipe.rounds``: new scenes, new drawn lenses and new
+random layouts), in pieces from its committed pack like the long training:
+
+    python experiments/bundle_model.py --scale cpu --recipe more --design G16VV-cpu-zncc --until 3000
 """
 
 from __future__ import annotations
@@ -83,6 +89,7 @@ NAME = "bundle_model"
 LONG_NAME = "long_training"
 CELLS_NAME = "cells_training"
 SKIP_NAME = "skip_training"
+MORE_NAME = "more_data"
 MODEL = "G16VV"
 RING = "ring5-0.5m"
 TESTS = ("paper-test1", "paper-test2", "paper-test3", RING)
@@ -109,6 +116,9 @@ class Recipe:
     workers: int
     # The trained model the run starts from (what --ckpt names), or None for random weights.
     init_from: Optional[str] = None
+    # Draws of the mixture: each round renders every role again with new scenes, new drawn
+    # lenses and new random layouts (round 0 is the mixture every other recipe trains on).
+    rounds: int = 1
 
 
 # The mixture and how it is seen in training (augmentation, calibration errors, loader
@@ -161,7 +171,17 @@ SKIP_RECIPES = {
     "cpu": Recipe(**MIXTURES["cpu"], steps=1000, batch=8, lr=3e-5, warmup=50, val_every=250,
                   ckpt_every=100),
 }
-RECIPE_KINDS = ("finetune", "long", "cells", "skip")
+# The fine bundle of a design fine-tuned on twice the mixture: the first draw and a second one
+# (new scenes, new lenses, new layouts; :func:`mixture_roles`), validated by the mode it is
+# read by. On fresh scenes of paper-train the fine bundle's MAE is 0.60 x RS-E32's against
+# 0.54 x on the scenes it trained on: the gap more data closes.
+MORE_RECIPES = {
+    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
+                    ckpt_every=2, rounds=2),
+    "cpu": Recipe(**MIXTURES["cpu"], steps=3000, batch=8, lr=5e-5, warmup=100, val_every=250,
+                  ckpt_every=100, rounds=2),
+}
+RECIPE_KINDS = ("finetune", "long", "cells", "skip", "more")
 # How a bundle reads its distances (``--estimate``; gijax.nn.regressor), in the provenance.
 ESTIMATE_WORDS = {"mean": "soft-argmax (the mean over the candidates)",
                   "mode": "sub-pixel mode (the mean within two candidates of the most probable "
@@ -204,11 +224,19 @@ def random_layout(k: int):
 
 
 def mixture_roles(recipe: Recipe) -> list:
-    """``(role, base rig, lens seed or None)`` of every mixture dataset."""
-    roles = [("mix-paper-train", "paper-train", None)]
-    roles += [(f"mix-lens-{k}", "paper-train", LENS_SEED + k) for k in range(recipe.lens_variants)]
-    roles += [(f"mix-layout-{k}", f"layout-{k}", LENS_SEED + 50 + k)
-              for k in range(recipe.layouts)]
+    """``(role, base rig, lens seed or None)`` of every mixture dataset, round by round: each
+    round has paper-train through its own lens (``mix-paper-train``, ``-r1``, ...), through
+    ``lens_variants`` drawn lenses and ``layouts`` random layouts, numbered on across rounds
+    so that every round draws new lenses and layouts (and its datasets new scene seeds, by
+    their place in the list)."""
+    roles = []
+    n_lens, n_lay = recipe.lens_variants, recipe.layouts
+    for r in range(recipe.rounds):
+        roles.append(("mix-paper-train" + (f"-r{r}" if r else ""), "paper-train", None))
+        roles += [(f"mix-lens-{k}", "paper-train", LENS_SEED + k)
+                  for k in range(r * n_lens, (r + 1) * n_lens)]
+        roles += [(f"mix-layout-{k}", f"layout-{k}", LENS_SEED + 50 + k)
+                  for k in range(r * n_lay, (r + 1) * n_lay)]
     return roles
 
 
@@ -273,19 +301,19 @@ class Plan:
 
     kind: str = "finetune"             # one of RECIPE_KINDS
     design: str = DEFAULT_DESIGN       # a CPU-scale preset name
-    pack: Optional[Path] = None        # the resume pack folder (long, cells and skip)
+    pack: Optional[Path] = None        # the resume pack folder (every kind but finetune)
 
     @property
     def recipe_table(self) -> dict:
         return {"finetune": RECIPES, "long": LONG_RECIPES, "cells": CELLS_RECIPES,
-                "skip": SKIP_RECIPES}[self.kind]
+                "skip": SKIP_RECIPES, "more": MORE_RECIPES}[self.kind]
 
     def recipe(self, scale: Scale) -> Recipe:
         """The plan's recipe at ``scale``; the fine-cell training starts from the design's
-        bundle (what ``--ckpt`` names it by), the skip's from the design's fine bundle, except
-        at the smoke scale."""
+        bundle (what ``--ckpt`` names it by), the skip's and the doubled mixture's from the
+        design's fine bundle, except at the smoke scale."""
         recipe = self.recipe_table[scale.name]
-        if self.kind in ("cells", "skip") and not scale.tiny:
+        if self.kind in ("cells", "skip", "more") and not scale.tiny:
             start = self.design if self.kind == "cells" else f"{self.design}-fine"
             recipe = dataclasses.replace(recipe, init_from=start)
         return recipe
@@ -300,13 +328,13 @@ def design_preset(scale: Scale, design: str) -> str:
 
 
 def run_folder(work: Path, scale: Scale, plan: Plan = FINETUNE) -> Path:
-    if plan.kind in ("long", "cells", "skip"):
+    if plan.kind != "finetune":
         return work / "runs" / f"{plan.kind}-{design_preset(scale, plan.design)}"
     return work / "runs" / f"bundle-{preset_name(scale, MODEL)}"
 
 
 def pack_folder(scale: Scale, design: str, out: Path, kind: str = "long") -> Path:
-    """The resume pack folder of the ``kind`` ('long', 'cells' or 'skip') training of ``design``:
+    """The resume pack folder of the ``kind`` (a recipe kind but 'finetune') training of ``design``:
     committed under experiments/packs/ at the cpu scale; the other scales keep theirs with the
     output."""
     if scale.name == "cpu":
@@ -337,6 +365,9 @@ def train_config(scale: Scale, recipe: Recipe, seed: int, plan: Plan = FINETUNE)
     elif plan.kind == "skip":
         preset = design_preset(scale, plan.design)
         over = {**cell_overrides(scale, plan.design), "matching_skip": True, "estimate": "mode"}
+    elif plan.kind == "more":
+        preset = design_preset(scale, plan.design)
+        over = {**cell_overrides(scale, plan.design), "estimate": "mode"}
     else:
         preset, over = preset_name(scale, MODEL), model_overrides(scale, MODEL)
     return TrainConfig(preset=preset, model_overrides=over, lr=recipe.lr,
@@ -701,7 +732,7 @@ def main(argv=None) -> int:
     parser.add_argument("--previous", default=None,
                         help="the bundle evaluated beside the new one (default at the cpu "
                              "scale: the packaged bundle of --design for --recipe cells, its "
-                             "fine bundle for --recipe skip, the "
+                             "fine bundle for --recipe skip and more, the "
                              "packaged G16VV-cpu otherwise; none at other scales; 'none': skip)")
     parser.add_argument("--publish", default=None, metavar="DIR",
                         help="write the new bundle, its provenance and figures to DIR")
@@ -713,9 +744,11 @@ def main(argv=None) -> int:
                              "its cost volume at the output's resolution for CELLS_RECIPES' "
                              "steps, in pieces like 'long'; 'skip': --design's fine bundle "
                              "(<design>-fine) with the matching cost's skip to the logits, "
-                             "fine-tuned for SKIP_RECIPES' steps, in pieces like 'long'")
+                             "fine-tuned for SKIP_RECIPES' steps, in pieces like 'long'; "
+                             "'more': --design's fine bundle fine-tuned on the mixture and a "
+                             "second draw of it for MORE_RECIPES' steps, in pieces like 'long'")
     parser.add_argument("--design", default=DEFAULT_DESIGN, metavar="PRESET",
-                        help=f"the CPU-scale design of --recipe long, cells or skip (default "
+                        help=f"the CPU-scale design of every recipe but finetune (default "
                              f"{DEFAULT_DESIGN}; the designs are compared by "
                              f"experiments/design_comparison.py)")
     parser.add_argument("--estimate", choices=ESTIMATES, default=None,
@@ -733,7 +766,7 @@ def main(argv=None) -> int:
         parser.error(f"--scale {args.scale}: the {args.recipe} recipe has scales "
                      f"{sorted(recipes)}")
     if args.recipe == "finetune" and args.design != DEFAULT_DESIGN:
-        parser.error("--design chooses the design of --recipe long, cells or skip (the "
+        parser.error("--design chooses the design of every recipe but finetune (the "
                      f"fine-tuning recipe trains the bundled {DEFAULT_DESIGN})")
     from gijax.nn.presets import get_preset
 
@@ -744,7 +777,7 @@ def main(argv=None) -> int:
     # The long and fine-cell trainings report in their own sections; the fine-tuning recipe in
     # the bundle's.
     name = {"finetune": NAME, "long": LONG_NAME, "cells": CELLS_NAME,
-            "skip": SKIP_NAME}[args.recipe]
+            "skip": SKIP_NAME, "more": MORE_NAME}[args.recipe]
     work, out, results = resolve_paths(args, name)
     if results is not None:
         check_results_section(results, name)
@@ -764,7 +797,8 @@ def main(argv=None) -> int:
     run = run_folder(work, scale, plan)
     models = {"new bundle": run}
     default_previous = {"cells": f"gijax/assets/{plan.design}",
-                        "skip": f"gijax/assets/{plan.design}-fine"}.get(
+                        "skip": f"gijax/assets/{plan.design}-fine",
+                        "more": f"gijax/assets/{plan.design}-fine"}.get(
                             plan.kind, "gijax/assets/G16VV-cpu")
     previous = args.previous or (default_previous if scale.name == "cpu" else "none")
     if previous != "none":
@@ -796,7 +830,10 @@ def main(argv=None) -> int:
                      "volume at the output's resolution"),
            "skip": ("fine-tuned from its fine bundle with the matching cost's skip to the "
                     "logits, validated by the sub-pixel mode" if recipe.init_from else
-                    "from random weights with the matching cost's skip to the logits")}[plan.kind]
+                    "from random weights with the matching cost's skip to the logits"),
+           "more": ("fine-tuned from its fine bundle on the mixture and a second draw of it, "
+                    "validated by the sub-pixel mode" if recipe.init_from else
+                    "from random weights on the mixture and a second draw of it")}[plan.kind]
     md = "\n\n".join([
         f"{MODEL if plan.kind == 'finetune' else plan.design} trained on the mixture "
         f"({len(mixture_roles(recipe))} datasets of "
@@ -812,7 +849,8 @@ def main(argv=None) -> int:
         *(f"![{t}]({figures[t].name})" for t in TESTS),
         "## Provenance", provenance_markdown(prov)])
     titles = {NAME: "The bundled model", LONG_NAME: "The long training",
-              CELLS_NAME: "The fine-cell training", SKIP_NAME: "The matching skip"}
+              CELLS_NAME: "The fine-cell training", SKIP_NAME: "The matching skip",
+              MORE_NAME: "The doubled mixture"}
     save_table(out, titles[name], md, doc)
     if results is not None:
         publish_section(results, name, md, figures.values())

@@ -51,6 +51,51 @@ def test_mixture_seeds_are_its_own():
     assert all(r.startswith("layout-") for _, r, s in roles[4:])
 
 
+def test_a_second_round_of_the_mixture_draws_new_scenes_lenses_and_layouts():
+    """``rounds=2`` keeps the first round's datasets as they are (names, rigs, lens seeds and,
+    by their place, scene seeds) and adds as many again with new ones: new scene seeds, lens
+    seeds and random layouts, none shared with the tables' data."""
+    one = B.mixture_roles(B.RECIPES["cpu"])
+    two = B.mixture_roles(B.MORE_RECIPES["cpu"])
+    assert B.MORE_RECIPES["cpu"].rounds == 2 and len(two) == 2 * len(one)
+    assert two[:len(one)] == one
+    second = two[len(one):]
+    assert second[0] == ("mix-paper-train-r1", "paper-train", None)
+    assert len({r for r, _, _ in two}) == len(two)                # every folder its own
+    lens = [s for _, _, s in two if s is not None]
+    assert len(set(lens)) == len(lens) == 14
+    layouts = [b for _, b, _ in second if b.startswith("layout-")]
+    assert layouts == [f"layout-{k}" for k in range(4, 8)]
+    positions = [np.asarray(B.random_layout(k).translations) for k in range(8)]
+    for new in positions[4:]:
+        assert not any(old.shape == new.shape and np.allclose(old, new)
+                       for old in positions[:4])
+    taken = set(scales.DATA_SEEDS.values()) | set(learned_candidates.SEEDS.values())
+    assert not taken & {B.MIX_SEED + i for i in range(len(two))}
+
+
+def test_the_more_recipe_fine_tunes_the_fine_bundle_on_two_rounds_read_by_the_mode(tmp_path):
+    """``--recipe more``: the fine bundle's configuration with the mode estimate, started from
+    it at the cpu scale, with its own run and pack folders and all 16 folders as data."""
+    from gijax.store import load_model
+
+    cpu = scales.SCALES["cpu"]
+    design = "G16VV-cpu-zncc"
+    plan = B.Plan("more", design, B.pack_folder(cpu, design, tmp_path, "more"))
+    assert plan.pack == Path(B.__file__).resolve().parent / "packs" / f"more-{design}"
+    recipe = plan.recipe(cpu)
+    assert recipe.init_from == f"{design}-fine"
+    cfg = B.train_config(cpu, recipe, 0, plan)
+    _, fine, _ = load_model(recipe.init_from)
+    assert cfg.model_config() == dataclasses.replace(fine, estimate="mode")
+    data = [{"role": r, "path": str(tmp_path / "data" / r)}
+            for r, _, _ in B.mixture_roles(recipe)]
+    argv = [str(a) for a in B.train_argv(tmp_path, cpu, recipe, 0, data, plan)]
+    assert argv[argv.index("--out") + 1] == str(tmp_path / "runs" / f"more-{design}")
+    folders = argv[argv.index("--data") + 1:argv.index("--val")]
+    assert len(folders) == 16 and folders[8] == str(tmp_path / "data" / "mix-paper-train-r1")
+
+
 def _row(test, model, lst, mae):
     return {"test": test, "model": model, "list": lst, "mae": mae}
 
