@@ -54,7 +54,7 @@ The doubled mixture (``--recipe more``) fine-tunes the fine bundle on the mixtur
 draw of it (:data:`MORE_RECIPES`, ``Recipe.rounds``: new scenes, new drawn lenses and new
 random layouts), in pieces from its committed pack like the long training:
 
-    python experiments/bundle_model.py --scale cpu --recipe more --design G16VV-cpu-zncc --until 3000
+    python experiments/bundle_model.py --scale cpu --recipe more --design G16VV-cpu-zncc --until 1500
 """
 
 from __future__ import annotations
@@ -178,7 +178,7 @@ SKIP_RECIPES = {
 MORE_RECIPES = {
     "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
                     ckpt_every=2, rounds=2),
-    "cpu": Recipe(**MIXTURES["cpu"], steps=3000, batch=8, lr=5e-5, warmup=100, val_every=250,
+    "cpu": Recipe(**MIXTURES["cpu"], steps=1500, batch=8, lr=5e-5, warmup=75, val_every=250,
                   ckpt_every=100, rounds=2),
 }
 RECIPE_KINDS = ("finetune", "long", "cells", "skip", "more")
