@@ -27,8 +27,12 @@ F64_ROUND_TRIP = 1e-8
 # eps * |d pixel / d ray| on top of the three steps above (8.5e-4 px measured at 7000 px/rad).
 # Its bound is therefore per pixel: F32_ROUND_TRIP + F32_RAY_ROUNDINGS * eps * that
 # sensitivity (the spectral norm of the projection's Jacobian with respect to the unit ray, in
-# float64). Over 300 drawn lenses the largest excess was 0.90 eps * |J|.
+# float64). Over 300 drawn lenses the largest excess was 0.90 eps * |J| (0.99 over 300 more
+# under the suite's classic XLA emitters, at the pixels a lens determines: _check_round_trip).
 F32_RAY_ROUNDINGS = 2.0
+# The float32 round trip of the omni model is checked where its radial distortion's slope
+# (d r_distorted / d r) is above this: nearer the fold a pixel hardly determines its angle.
+OMNI_DETERMINED_SLOPE = 0.5
 
 
 def ds_params(draw):
@@ -94,13 +98,21 @@ def _round_trip(cam, px):
     return back, ok & ok2, ok, jnp.linalg.norm(ray, axis=-1)
 
 
-def _ray_sensitivity(params, px):
-    """|d pixel / d ray| (pixels per radian) at each pixel's float64 ray, for the omni model."""
+def _omni_conditioning(params, px):
+    """For the omni model at each pixel's float64 ray: ``|d pixel / d ray|`` (pixels per
+    radian, the projection Jacobian's spectral norm), the slope of its radial distortion,
+    ``1 + 3 k1 r^2 + 5 k2 r^4`` at the undistorted radius ``r``, and whether the pixel
+    unprojects (the other two hold only there)."""
     with jax.enable_x64(True):
         cam = C.make_camera("omni", params, W, H, FOV["omni"], dtype=jnp.float64)
-        ray, _ = C.unproject(cam, jnp.asarray(px, jnp.float64))
+        ray, valid = C.unproject(cam, jnp.asarray(px, jnp.float64))
         jac = jax.vmap(jax.jacfwd(lambda r: C.project(cam, r)[0]))(ray)
-        return np.asarray(jnp.linalg.norm(jac, ord=2, axis=(-2, -1)))
+        sensitivity = np.asarray(jnp.linalg.norm(jac, ord=2, axis=(-2, -1)))
+    ray = np.asarray(ray)
+    r2 = (ray[:, 0] ** 2 + ray[:, 1] ** 2) / (ray[:, 2] + params["xi"] * np.linalg.norm(
+        ray, axis=-1)) ** 2
+    slope = 1.0 + 3.0 * params["k1"] * r2 + 5.0 * params["k2"] * r2 * r2
+    return sensitivity, slope, np.asarray(valid)
 
 
 def _check_round_trip(model, params, dtype, tol):
@@ -129,8 +141,15 @@ def _check_round_trip(model, params, dtype, tol):
         assert r2.min() > 0.97, r2.min()
     err = np.abs(back.astype(np.float64) - px.astype(np.float64))[ok]
     if model == "omni" and dtype == jnp.float32:
-        tol = tol + F32_RAY_ROUNDINGS * np.finfo(np.float32).eps * _ray_sensitivity(
-            params, px)[ok][:, None]
+        sensitivity, slope, _ = (a[ok] for a in _omni_conditioning(params, px))
+        # As for Kannala-Brandt above: where the radial distortion's slope nears 0 (the fold
+        # the domain stops at) a pixel no longer determines its angle, and the float32 round
+        # trip there depends on how XLA orders the arithmetic: under the suite's classic
+        # emitters 9.5 eps * |J| at a slope of 0.016, 2.35 at 0.30, at most 0.99 above 0.5
+        # (300 drawn lenses). Those pixels are left to float64.
+        determined = slope > OMNI_DETERMINED_SLOPE
+        err = err[determined]
+        tol = tol + F32_RAY_ROUNDINGS * np.finfo(np.float32).eps * sensitivity[determined, None]
     assert (err <= tol).all(), (model, params, err.max())
     np.testing.assert_allclose(norm[ok], 1.0, atol=1e-6 if dtype == jnp.float32 else 1e-14)
     return err.max()
@@ -144,6 +163,19 @@ def test_round_trip_float32(model):
         _check_round_trip(model, params, jnp.float32, F32_ROUND_TRIP)
 
     run()
+
+
+def test_round_trip_omni_near_its_distortion_fold():
+    """A lens whose radial distortion nearly folds inside the image (k1 = -0.125: slope 0.016 in
+    a corner): the float32 round trip holds where the pixels determine their angle, and
+    float64 holds everywhere, the fold's neighbourhood included."""
+    params = dict(fx=413.5959509696173, fy=416.82716933656747, cx=582.0, cy=484.0, xi=0.75,
+                  k1=-0.125, k2=0.0, p1=0.0, p2=0.0)
+    _, slope, valid = _omni_conditioning(params, _pixels(np.float64))
+    assert slope[valid].min() < 0.05 and (slope[valid] > OMNI_DETERMINED_SLOPE).mean() > 0.5
+    _check_round_trip("omni", params, jnp.float32, F32_ROUND_TRIP)
+    with jax.enable_x64(True):
+        _check_round_trip("omni", params, jnp.float64, F64_ROUND_TRIP)
 
 
 @pytest.mark.parametrize("model", sorted(PARAM_STRATEGIES))
