@@ -362,12 +362,11 @@ def train_config(scale: Scale, recipe: Recipe, seed: int, plan: Plan = FINETUNE)
         preset, over = design_preset(scale, plan.design), design_overrides(scale, plan.design)
     elif plan.kind == "cells":
         preset, over = design_preset(scale, plan.design), cell_overrides(scale, plan.design)
-    elif plan.kind == "skip":
+    elif plan.kind in ("skip", "more"):
+        # Both continue the fine bundle, read by its mode; the skip grows it the matching skip.
         preset = design_preset(scale, plan.design)
-        over = {**cell_overrides(scale, plan.design), "matching_skip": True, "estimate": "mode"}
-    elif plan.kind == "more":
-        preset = design_preset(scale, plan.design)
-        over = {**cell_overrides(scale, plan.design), "estimate": "mode"}
+        grown = {"matching_skip": True} if plan.kind == "skip" else {}
+        over = {**cell_overrides(scale, plan.design), **grown, "estimate": "mode"}
     else:
         preset, over = preset_name(scale, MODEL), model_overrides(scale, MODEL)
     return TrainConfig(preset=preset, model_overrides=over, lr=recipe.lr,
