@@ -31,6 +31,7 @@ import numpy as np
 
 from experiments.reporting import read_json, write_json
 from gijax.io.paths import write_bytes_atomic
+from gijax.store.packs import is_pack, read_pack
 
 # Identifies the metric definitions of cached evaluations (evals/<key>.json): the paper's
 # columns plus gijax's beside them. Change it when a definition changes.
@@ -89,8 +90,11 @@ class Predictor:
 
 def weights_id(path: Path) -> str:
     """A short hash of a model's weights (a bundle's ``weights.npz``, a run's best checkpoint
-    folder), so a cached evaluation follows the weights, not the path."""
+    folder, a resume pack's state file by the SHA-256 its ``pack.json`` holds and checks), so a
+    cached evaluation follows the weights, not the path."""
     path = Path(path)
+    if is_pack(path):
+        return str(read_pack(path).meta["state_sha256"])[:12]
     files = [path / "weights.npz"] if (path / "weights.npz").is_file() else sorted(
         f for f in (path / "best").rglob("*") if f.is_file())
     h = hashlib.sha256()
@@ -106,7 +110,8 @@ def model_id(path: Path) -> str:
     weights), so a cached evaluation follows the model, not the path; the same weights read
     another way are another model."""
     path = Path(path)
-    config = json.loads((path / "config.json").read_text()).get("model", {})
+    config = (read_pack(path).meta["model_config"] if is_pack(path) else
+              json.loads((path / "config.json").read_text()).get("model", {}))
     h = hashlib.sha256(weights_id(path).encode())
     h.update(json.dumps(config, sort_keys=True).encode())
     return h.hexdigest()[:12]

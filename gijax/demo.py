@@ -89,7 +89,8 @@ def run_demo(out_dir: str | os.PathLike = "gijax-demo", seed: int | None = None,
              scenes: int = DEFAULT_SCENES) -> dict:
     """Run the demo and write ``demo.png``, ``points.ply`` and ``demo.json`` to ``out_dir``.
 
-    ``model`` is a training run folder, an inference bundle or the name of a bundled model.
+    ``model`` is a training run folder, an inference bundle, a resume pack or the name of a
+    bundled model.
     ``seed`` None draws fresh scenes each run (the seed used is printed and saved); each rig
     gets ``scenes`` scenes, and every method is scored on all of them: the verdict is the mean
     and the per-scene spread, not one draw. Returns ``{rig: {method: summary}}`` (see

@@ -560,6 +560,21 @@ def test_a_run_whose_folder_is_lost_resumes_from_its_pack_with_the_same_losses(t
     assert len(got_params) == len(final_params)
     for a, b in zip(got_params, final_params):
         np.testing.assert_array_equal(np.asarray(a), b)
+    # The pack alone is a model too (what --ckpt and --init-from take on a machine without the
+    # run folder): every variable, BatchNorm statistics included, as the run's checkpoint.
+    from gijax.store import load_model
+    from gijax.store.bundles import flatten_variables
+
+    packed, packed_config, packed_cand = load_model(pack)
+    run_vars = flatten_variables(nnx.to_pure_dict(nnx.state(model)))
+    pack_vars = flatten_variables(nnx.to_pure_dict(nnx.state(packed)))
+    assert sorted(pack_vars) == sorted(run_vars) and any("mean" in k for k in run_vars)
+    for key, value in run_vars.items():
+        np.testing.assert_array_equal(pack_vars[key], value, err_msg=key)
+    assert packed_config == cfg.model_config()
+    norms = [m for _, m in nnx.iter_modules(packed) if isinstance(m, nnx.BatchNorm)]
+    assert norms and all(m.use_running_average for m in norms)      # in eval mode
+    np.testing.assert_allclose(packed_cand, read_pack(pack).meta["candidates"])
 
     # A damaged state file: refused naming it, before any run folder is made.
     state_file = next(pack.glob("state-*.npz"))

@@ -38,8 +38,9 @@ def register(sub) -> None:
                         f"method is scored on each")
     p.add_argument("--ckpt", "--model", dest="model", default=DEFAULT_MODEL,
                    metavar="PATH|NAME",
-                   help=f"the model: a training run folder, an inference bundle or the name of "
-                        f"a bundled model (see 'gijax models'; default {DEFAULT_MODEL})")
+                   help=f"the model: a training run folder, an inference bundle, a resume pack "
+                        f"or the name of a bundled model (see 'gijax models'; default "
+                        f"{DEFAULT_MODEL})")
     p.add_argument("--baseline", default="RS-E32",
                    help=f"classical baseline configuration: {', '.join(sorted(RTSS_PRESETS))} "
                         f"(default RS-E32)")

@@ -24,8 +24,8 @@ to what the method works at (the learned model: the rig's size times its image s
 baseline works at the images' own size and rescales the lenses instead), with a note; images
 of another aspect ratio are refused.
 
-The model comes from a training run folder, an inference bundle or a bundled model by name
-(--ckpt; 'gijax models' lists them), from an exported ONNX file run by onnxruntime (--backend
+The model comes from a training run folder, an inference bundle, a resume pack or a bundled
+model by name (--ckpt; 'gijax models' lists them), from an exported ONNX file run by onnxruntime (--backend
 onnx --onnx FILE), or, for trying the pipeline, from a preset with random weights (--preset;
 the outputs are then labelled UNTRAINED).
 --method rtss runs the classical sphere-sweep stereo baseline instead: it has no model, so

@@ -71,7 +71,8 @@ def register(subparsers) -> None:
                    help="learning rate of the learned list's logits")
     p.add_argument("--init-from", default=None, metavar="CKPT",
                    help="start from a trained model instead of random weights (a run folder, "
-                        "a bundle or a bundled model's name, e.g. G16VV-cpu): fine-tuning with "
+                        "a bundle, a resume pack or a bundled model's name, e.g. G16VV-cpu): "
+                        "fine-tuning with "
                         "a fresh optimiser and schedule; its network must be --preset's (with "
                         "--override). A run folder with a checkpoint resumes from that instead")
     p.add_argument("--pack", default=None, metavar="DIR",

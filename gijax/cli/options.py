@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
-CKPT_HELP = ("training run folder (config.json + checkpoints), inference bundle, or the name of "
-             "a bundled model (see 'gijax models')")
+CKPT_HELP = ("training run folder (config.json + checkpoints), inference bundle, resume pack "
+             "(pack.json: the network at the pack's step), or the name of a bundled model (see "
+             "'gijax models')")
 
 
 def field_value(text: str) -> tuple[str, object]:

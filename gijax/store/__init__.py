@@ -8,6 +8,7 @@ bundles and reads its own run folder back through the same modules.
 * :mod:`gijax.store.checkpoints`: the orbax checkpoint folders of a run;
 * :mod:`gijax.store.runs`: a model from a run folder (best or newest checkpoint);
 * :mod:`gijax.store.bundles`: a model from an inference bundle;
+* :mod:`gijax.store.packs`: a long training's resume packs, and the model in one;
 * :mod:`gijax.store.assets`: bundles shipped in ``gijax/assets``, by name.
 """
 
@@ -19,17 +20,24 @@ from gijax.host_memory import release_freed_memory
 from gijax.store.assets import bundled_names, describe_bundled, resolve_model_path
 from gijax.store.bundles import is_bundle, load_bundle
 from gijax.store.configs import read_preset, read_run_config
+from gijax.store.packs import is_pack, load_pack_model
 from gijax.store.runs import load_for_inference
 
 
 def load_model(spec: str | os.PathLike, which: str = "best"):
     """``(model, model_config, candidates)`` from what ``--ckpt`` names: a training run folder
-    (``which`` checkpoint: 'best' validated, else newest; or 'latest'), an inference bundle, or
-    the name of a bundled model. The model is in eval mode; candidates are its training list,
+    (``which`` checkpoint: 'best' validated, else newest; or 'latest'), an inference bundle, a
+    resume pack (the network at the pack's step; ``which`` does not apply), or the name of a
+    bundled model. The model is in eval mode; candidates are its training list,
     (D,) float64 metres. Memory freed while building and restoring goes back to the system
     (:func:`gijax.host_memory.release_freed_memory`)."""
     path = resolve_model_path(spec)
-    loaded = load_bundle(path) if is_bundle(path) else load_for_inference(path, which)
+    if is_bundle(path):
+        loaded = load_bundle(path)
+    elif is_pack(path):
+        loaded = load_pack_model(path)
+    else:
+        loaded = load_for_inference(path, which)
     release_freed_memory()
     return loaded
 
@@ -62,6 +70,7 @@ def model_or_untrained(ckpt: str | os.PathLike | None, preset: str | None, seed:
             f"UNTRAINED {config.name} (random weights, seed {seed})")
 
 
-__all__ = ["bundled_names", "describe_bundled", "is_bundle", "load_bundle", "model_provenance",
+__all__ = ["bundled_names", "describe_bundled", "is_bundle", "is_pack", "load_bundle",
+           "load_pack_model", "model_provenance",
            "load_for_inference", "load_model", "model_or_untrained", "read_preset", "read_run_config",
            "resolve_model_path"]

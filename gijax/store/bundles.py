@@ -64,38 +64,47 @@ def load_bundle(path: str | os.PathLike):
     """``(model, model_config, candidates)`` from a bundle folder; the model is in eval mode,
     candidates are the training list, (D,) float64 metres. ValueError naming the file when the
     weights are unreadable or belong to another network."""
-    import jax.numpy as jnp
-    from flax import nnx, traverse_util
-
-    from gijax.model import create_model
     from gijax.store.configs import read_run_config
 
     path = Path(path)
     run = read_run_config(path)
-    mc = run.model
-    model = create_model(mc, int(run.train.get("seed", 0)))
-    state = nnx.state(model)
-    expected = flatten_variables(nnx.to_pure_dict(state))
     try:
         with np.load(path / WEIGHTS_FILE) as f:
             stored = {k: f[k] for k in f.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise ValueError(f"{path / WEIGHTS_FILE}: unreadable weights ({exc})") from exc
+    model = model_with_variables(run.model, int(run.train.get("seed", 0)), stored,
+                                 path / WEIGHTS_FILE)
+    return model, run.model, np.asarray(run.candidates, np.float64)
+
+
+def model_with_variables(mc, seed: int, stored: dict, where):
+    """The network ``mc`` (a ModelConfig) holding ``stored``, its variables keyed as
+    :func:`flatten_variables` keys them, in eval mode. ValueError naming ``where`` when a
+    variable is missing, unexpected, of another shape or not finite."""
+    import jax.numpy as jnp
+    from flax import nnx, traverse_util
+
+    from gijax.model import create_model
+
+    model = create_model(mc, seed)
+    state = nnx.state(model)
+    expected = flatten_variables(nnx.to_pure_dict(state))
     missing = sorted(set(expected) - set(stored))
     extra = sorted(set(stored) - set(expected))
     if missing or extra:
-        raise ValueError(f"{path / WEIGHTS_FILE} does not match model {mc.name!r}: missing "
+        raise ValueError(f"{where} does not match model {mc.name!r}: missing "
                          f"{missing[:5]}{'...' if len(missing) > 5 else ''}, unexpected "
                          f"{extra[:5]}{'...' if len(extra) > 5 else ''}")
     for key, ref in expected.items():
         if stored[key].shape != ref.shape:
-            raise ValueError(f"{path / WEIGHTS_FILE}: {key} has shape {stored[key].shape}, "
+            raise ValueError(f"{where}: {key} has shape {stored[key].shape}, "
                              f"model {mc.name!r} expects {ref.shape}")
-    require_finite(stored, path / WEIGHTS_FILE)
+    require_finite(stored, where)
     pure = traverse_util.unflatten_dict(
         {tuple(int(p) if p.isdigit() else p for p in k.split(_SEP)):
          jnp.asarray(v, expected[k].dtype) for k, v in stored.items()})
     nnx.replace_by_pure_dict(state, pure)
     nnx.update(model, state)
     model.eval()
-    return model, mc, np.asarray(run.candidates, np.float64)
+    return model

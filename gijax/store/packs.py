@@ -192,3 +192,34 @@ def restore_state(pack: Pack, abstract_state: Any) -> Any:
                              f"{tuple(leaf.shape)}, found {arr.dtype} {tuple(arr.shape)}")
         out.append(arr)
     return jax.tree_util.tree_unflatten(treedef, out)
+
+
+def is_pack(path: str | os.PathLike) -> bool:
+    return (Path(path) / PACK_FILE).is_file()
+
+
+def load_pack_model(folder: str | os.PathLike):
+    """``(model, model_config, candidates)`` of the network in the pack ``folder`` at the pack's
+    step, in eval mode (what a machine that has the committed pack but not the run folder can
+    evaluate, export or start another training from); candidates are the run's list, (D,)
+    float64 metres. ValueError (one line naming the file) when the pack is damaged or its
+    variables do not fit its network."""
+    from gijax.store.bundles import model_with_variables
+    from gijax.store.configs import model_config_from_dict
+
+    pack = read_pack(folder)
+    if pack is None:
+        raise FileNotFoundError(f"{Path(folder) / PACK_FILE}: no resume pack there")
+    doc_path = pack.folder / PACK_FILE
+    for field in ("model_config", "candidates"):
+        if not isinstance(pack.meta.get(field), (dict, list)):
+            raise bad_document_field(doc_path, field, "present", MISSING)
+    try:
+        mc = model_config_from_dict(pack.meta["model_config"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{doc_path}: field 'model_config' is not a network configuration "
+                         f"({exc})") from None
+    seed = int(pack.meta.get("train_config", {}).get("seed", 0))
+    model = model_with_variables(mc, seed, model_variables(pack),
+                                 pack.folder / str(pack.meta["state_file"]))
+    return model, mc, np.asarray(pack.meta["candidates"], np.float64)
