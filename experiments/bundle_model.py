@@ -55,6 +55,15 @@ draw of it (:data:`MORE_RECIPES`, ``Recipe.rounds``: new scenes, new drawn lense
 random layouts), in pieces from its committed pack like the long training:
 
     python experiments/bundle_model.py --scale cpu --recipe more --design G16VV-cpu-zncc --until 1500
+
+The third draw (``--recipe third``) continues the doubled mixture's network, read from its
+committed pack (``experiments/packs/more-<design>``: ``--init-from`` takes a pack as it takes a
+bundle), on all three draws of the mixture (:data:`THIRD_RECIPES`), and is compared with it:
+
+    python experiments/bundle_model.py --scale cpu --recipe third --design G16VV-cpu-zncc --until 1200
+
+Every recipe kind is one entry of :data:`KINDS`: its recipes, report section, start, the model
+it is compared with, and its network.
 """
 
 from __future__ import annotations
@@ -65,7 +74,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -90,6 +99,7 @@ LONG_NAME = "long_training"
 CELLS_NAME = "cells_training"
 SKIP_NAME = "skip_training"
 MORE_NAME = "more_data"
+THIRD_NAME = "third_draw"
 MODEL = "G16VV"
 RING = "ring5-0.5m"
 TESTS = ("paper-test1", "paper-test2", "paper-test3", RING)
@@ -181,7 +191,87 @@ MORE_RECIPES = {
     "cpu": Recipe(**MIXTURES["cpu"], steps=1500, batch=8, lr=5e-5, warmup=75, val_every=250,
                   ckpt_every=100, rounds=2),
 }
-RECIPE_KINDS = ("finetune", "long", "cells", "skip", "more")
+# The doubled mixture's network (its committed pack, the schedule's last step) fine-tuned on a
+# third draw beside the first two: every dataset of the doubled mixture and 8 new ones. On
+# paper-test1 the doubled mixture left the fine bundle's 0.753 x RS-E32 where it was while
+# every wider rig and the validation set improved; the fresh-scene gap had not closed.
+THIRD_RECIPES = {
+    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
+                    ckpt_every=2, rounds=3),
+    "cpu": Recipe(**MIXTURES["cpu"], steps=1200, batch=8, lr=4e-5, warmup=60, val_every=200,
+                  ckpt_every=100, rounds=3),
+}
+@dataclasses.dataclass(frozen=True)
+class Kind:
+    """One training of the bundle (``--recipe``): its recipes by scale, where it reports, what
+    it starts from and what its network changes."""
+
+    recipes: dict            # scale name -> Recipe
+    section: str             # its experiments/RESULTS.md section (and output file) name
+    title: str
+    help: str                # what --recipe says of it
+    # How the run is described, started from a trained model (the first) or from random weights.
+    how: tuple
+    # The model it starts from at every scale but smoke, given (scale, design, output folder);
+    # None: the recipe's own init_from.
+    start: Optional[Callable] = None
+    # The model evaluated beside it at the cpu scale, given (scale, design, output folder).
+    previous: Callable = lambda scale, design, out: "gijax/assets/G16VV-cpu"
+    # The network: 'preset' (the design as named), 'cells' (its cost volume at the output's
+    # resolution), 'mode' (cells, read by the sub-pixel mode); or None, the bundled MODEL.
+    network: Optional[str] = None
+    grown: tuple = ()        # GROWN_FIELDS switched on (starting as the identity)
+    packed: bool = True      # trained in pieces from a committed resume pack
+
+
+def _pack_of_kind(kind: str) -> Callable:
+    """The start of a kind that continues another kind's run: that run's resume pack."""
+    return lambda scale, design, out: str(pack_folder(scale, design, out, kind))
+
+
+KINDS = {
+    "finetune": Kind(RECIPES, NAME, "The bundled model",
+                     "the bundled design fine-tuned from the bundle for RECIPES' steps",
+                     ("fine-tuned", "fine-tuned"), packed=False),
+    "long": Kind(LONG_RECIPES, LONG_NAME, "The long training",
+                 "--design trained from random weights for LONG_RECIPES' steps, in pieces, "
+                 "resuming from its committed pack",
+                 ("from random weights", "from random weights"), network="preset"),
+    "cells": Kind(CELLS_RECIPES, CELLS_NAME, "The fine-cell training",
+                  "--design's bundle fine-tuned with its cost volume at the output's "
+                  "resolution for CELLS_RECIPES' steps, in pieces like 'long'",
+                  ("fine-tuned from its bundle with the cost volume at the output's resolution",
+                   "from random weights with the cost volume at the output's resolution"),
+                  start=lambda scale, design, out: design,
+                  previous=lambda scale, design, out: f"gijax/assets/{design}", network="cells"),
+    "skip": Kind(SKIP_RECIPES, SKIP_NAME, "The matching skip",
+                 "--design's fine bundle (<design>-fine) with the matching cost's skip to the "
+                 "logits, fine-tuned for SKIP_RECIPES' steps, in pieces like 'long'",
+                 ("fine-tuned from its fine bundle with the matching cost's skip to the "
+                  "logits, validated by the sub-pixel mode",
+                  "from random weights with the matching cost's skip to the logits"),
+                 start=lambda scale, design, out: f"{design}-fine",
+                 previous=lambda scale, design, out: f"gijax/assets/{design}-fine", network="mode",
+                 grown=("matching_skip",)),
+    "more": Kind(MORE_RECIPES, MORE_NAME, "The doubled mixture",
+                 "--design's fine bundle fine-tuned on the mixture and a second draw of it "
+                 "for MORE_RECIPES' steps, in pieces like 'long'",
+                 ("fine-tuned from its fine bundle on the mixture and a second draw of it, "
+                  "validated by the sub-pixel mode",
+                  "from random weights on the mixture and a second draw of it"),
+                 start=lambda scale, design, out: f"{design}-fine",
+                 previous=lambda scale, design, out: f"gijax/assets/{design}-fine", network="mode"),
+    "third": Kind(THIRD_RECIPES, THIRD_NAME, "The third draw",
+                  "the doubled mixture's network (the last step in its committed pack, "
+                  "experiments/packs/more-<design>) fine-tuned on the mixture's three draws "
+                  "for THIRD_RECIPES' steps, in pieces like 'long'",
+                  ("fine-tuned from the doubled mixture's network on the mixture's three "
+                   "draws, validated by the sub-pixel mode",
+                   "from random weights on the mixture's three draws"),
+                  start=_pack_of_kind("more"), previous=_pack_of_kind("more"), network="mode"),
+}
+RECIPE_KINDS = tuple(KINDS)
+
 # How a bundle reads its distances (``--estimate``; gijax.nn.regressor), in the provenance.
 ESTIMATE_WORDS = {"mean": "soft-argmax (the mean over the candidates)",
                   "mode": "sub-pixel mode (the mean within two candidates of the most probable "
@@ -299,23 +389,21 @@ class Plan:
     training of a design (:data:`LONG_RECIPES`) or its fine-cell training
     (:data:`CELLS_RECIPES`), the last two with their resume packs."""
 
-    kind: str = "finetune"             # one of RECIPE_KINDS
+    kind: str = "finetune"             # a key of KINDS
     design: str = DEFAULT_DESIGN       # a CPU-scale preset name
     pack: Optional[Path] = None        # the resume pack folder (every kind but finetune)
+    out: Optional[Path] = None         # the script's output folder (where other scales' packs are)
 
     @property
     def recipe_table(self) -> dict:
-        return {"finetune": RECIPES, "long": LONG_RECIPES, "cells": CELLS_RECIPES,
-                "skip": SKIP_RECIPES, "more": MORE_RECIPES}[self.kind]
+        return KINDS[self.kind].recipes
 
     def recipe(self, scale: Scale) -> Recipe:
-        """The plan's recipe at ``scale``; the fine-cell training starts from the design's
-        bundle (what ``--ckpt`` names it by), the skip's and the doubled mixture's from the
-        design's fine bundle, except at the smoke scale."""
-        recipe = self.recipe_table[scale.name]
-        if self.kind in ("cells", "skip", "more") and not scale.tiny:
-            start = self.design if self.kind == "cells" else f"{self.design}-fine"
-            recipe = dataclasses.replace(recipe, init_from=start)
+        """The plan's recipe at ``scale``, starting from its kind's model (:attr:`Kind.start`),
+        except at the smoke scale (random weights: a pipeline check)."""
+        recipe, start = self.recipe_table[scale.name], KINDS[self.kind].start
+        if start is not None and not scale.tiny:
+            recipe = dataclasses.replace(recipe, init_from=start(scale, self.design, self.out))
         return recipe
 
 
@@ -358,17 +446,16 @@ def train_config(scale: Scale, recipe: Recipe, seed: int, plan: Plan = FINETUNE)
     from experiments.scales import design_overrides
     from gijax.train.config import TrainConfig
 
-    if plan.kind == "long":
-        preset, over = design_preset(scale, plan.design), design_overrides(scale, plan.design)
-    elif plan.kind == "cells":
-        preset, over = design_preset(scale, plan.design), cell_overrides(scale, plan.design)
-    elif plan.kind in ("skip", "more"):
-        # Both continue the fine bundle, read by its mode; the skip grows it the matching skip.
-        preset = design_preset(scale, plan.design)
-        grown = {"matching_skip": True} if plan.kind == "skip" else {}
-        over = {**cell_overrides(scale, plan.design), **grown, "estimate": "mode"}
-    else:
+    network = KINDS[plan.kind].network
+    if network is None:
         preset, over = preset_name(scale, MODEL), model_overrides(scale, MODEL)
+    else:
+        preset = design_preset(scale, plan.design)
+        over = (design_overrides(scale, plan.design) if network == "preset"
+                else cell_overrides(scale, plan.design))
+        over = {**over, **{field: True for field in KINDS[plan.kind].grown}}
+        if network == "mode":
+            over["estimate"] = "mode"
     return TrainConfig(preset=preset, model_overrides=over, lr=recipe.lr,
                        schedule="warmup_cosine", warmup_steps=recipe.warmup,
                        batch_size=recipe.batch, steps=recipe.steps, seed=seed,
@@ -662,7 +749,13 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                f" (the best the run folder held; step {overall['step']}'s "
                f"{overall['mae']:.4f} was not kept)")
             if best else f"these weights: step {held}, the newest checkpoint (no validation)")
+    from gijax.store.packs import is_pack
+
     start = ("random weights" if not init else
+             f"the resume pack {Path(init['model']).name} of revision {init['git_revision']} "
+             f"(experiments/packs/; state sha256 {init['weights_sha256_12']}...; its "
+             f"metrics.jsonl there holds that run's commands and learning curve)"
+             if is_pack(init["model"]) else
              f"the bundled {init['model']} of revision {init['git_revision']} (weights "
              f"sha256 {init['weights_sha256_12']}...; its own PROVENANCE.json there says how "
              f"it was trained)")
@@ -729,23 +822,17 @@ def main(argv=None) -> int:
     parser = script_parser(__doc__)
     add_common_arguments(parser, NAME)
     parser.add_argument("--previous", default=None,
-                        help="the bundle evaluated beside the new one (default at the cpu "
+                        help="the model evaluated beside the new one (default at the cpu "
                              "scale: the packaged bundle of --design for --recipe cells, its "
-                             "fine bundle for --recipe skip and more, the "
-                             "packaged G16VV-cpu otherwise; none at other scales; 'none': skip)")
+                             "fine bundle for --recipe skip and more, the doubled mixture's "
+                             "pack for --recipe third, the packaged G16VV-cpu otherwise; none "
+                             "at other scales; 'none': skip)")
     parser.add_argument("--publish", default=None, metavar="DIR",
                         help="write the new bundle, its provenance and figures to DIR")
     parser.add_argument("--recipe", choices=RECIPE_KINDS, default="finetune",
-                        help="'finetune' (default): the bundled design fine-tuned from the "
-                             "bundle for the recipe's steps; 'long': --design trained from "
-                             "random weights for LONG_RECIPES' steps, in pieces, resuming from "
-                             "its committed pack; 'cells': --design's bundle fine-tuned with "
-                             "its cost volume at the output's resolution for CELLS_RECIPES' "
-                             "steps, in pieces like 'long'; 'skip': --design's fine bundle "
-                             "(<design>-fine) with the matching cost's skip to the logits, "
-                             "fine-tuned for SKIP_RECIPES' steps, in pieces like 'long'; "
-                             "'more': --design's fine bundle fine-tuned on the mixture and a "
-                             "second draw of it for MORE_RECIPES' steps, in pieces like 'long'")
+                        help="which training: " + "; ".join(
+                            f"'{k}': {kind.help}" for k, kind in KINDS.items())
+                        + " (default finetune)")
     parser.add_argument("--design", default=DEFAULT_DESIGN, metavar="PRESET",
                         help=f"the CPU-scale design of every recipe but finetune (default "
                              f"{DEFAULT_DESIGN}; the designs are compared by "
@@ -775,14 +862,13 @@ def main(argv=None) -> int:
     scale = SCALES[args.scale]
     # The long and fine-cell trainings report in their own sections; the fine-tuning recipe in
     # the bundle's.
-    name = {"finetune": NAME, "long": LONG_NAME, "cells": CELLS_NAME,
-            "skip": SKIP_NAME, "more": MORE_NAME}[args.recipe]
+    kind = KINDS[args.recipe]
+    name = kind.section
     work, out, results = resolve_paths(args, name)
     if results is not None:
         check_results_section(results, name)
-    plan = (FINETUNE if args.recipe == "finetune" else
-            Plan(args.recipe, args.design,
-                 pack_folder(scale, args.design, out, args.recipe)))
+    plan = (Plan(args.recipe, args.design, pack_folder(scale, args.design, out, args.recipe),
+                 out) if kind.packed else FINETUNE)
     recipe = plan.recipe(scale)
     started, durations = time.time(), {}
 
@@ -795,11 +881,7 @@ def main(argv=None) -> int:
     durations["training"] = time.perf_counter() - t0
     run = run_folder(work, scale, plan)
     models = {"new bundle": run}
-    default_previous = {"cells": f"gijax/assets/{plan.design}",
-                        "skip": f"gijax/assets/{plan.design}-fine",
-                        "more": f"gijax/assets/{plan.design}-fine"}.get(
-                            plan.kind, "gijax/assets/G16VV-cpu")
-    previous = args.previous or (default_previous if scale.name == "cpu" else "none")
+    previous = args.previous or (kind.previous(scale, plan.design, out) if scale.name == "cpu" else "none")
     if previous != "none":
         models["previous bundle"] = Path(previous)
     t0 = time.perf_counter()
@@ -823,16 +905,7 @@ def main(argv=None) -> int:
     doc = {"table": NAME, "rows": rows, "targets": targets, "training": trained,
            "figures": {k: v.name for k, v in figures.items()}, "provenance": prov}
     target_lines = targets_markdown(targets)
-    how = {"long": "from random weights", "finetune": "fine-tuned",
-           "cells": ("fine-tuned from its bundle with the cost volume at the output's "
-                     "resolution" if recipe.init_from else "from random weights with the cost "
-                     "volume at the output's resolution"),
-           "skip": ("fine-tuned from its fine bundle with the matching cost's skip to the "
-                    "logits, validated by the sub-pixel mode" if recipe.init_from else
-                    "from random weights with the matching cost's skip to the logits"),
-           "more": ("fine-tuned from its fine bundle on the mixture and a second draw of it, "
-                    "validated by the sub-pixel mode" if recipe.init_from else
-                    "from random weights on the mixture and a second draw of it")}[plan.kind]
+    how = kind.how[0 if recipe.init_from else 1]
     md = "\n\n".join([
         f"{MODEL if plan.kind == 'finetune' else plan.design} trained on the mixture "
         f"({len(mixture_roles(recipe))} datasets of "
@@ -847,10 +920,7 @@ def main(argv=None) -> int:
         f"![learning curve]({figures['curve'].name})",
         *(f"![{t}]({figures[t].name})" for t in TESTS),
         "## Provenance", provenance_markdown(prov)])
-    titles = {NAME: "The bundled model", LONG_NAME: "The long training",
-              CELLS_NAME: "The fine-cell training", SKIP_NAME: "The matching skip",
-              MORE_NAME: "The doubled mixture"}
-    save_table(out, titles[name], md, doc)
+    save_table(out, kind.title, md, doc)
     if results is not None:
         publish_section(results, name, md, figures.values())
     if args.publish:
