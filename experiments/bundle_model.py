@@ -201,6 +201,8 @@ THIRD_RECIPES = {
     "cpu": Recipe(**MIXTURES["cpu"], steps=1200, batch=8, lr=4e-5, warmup=60, val_every=200,
                   ckpt_every=100, rounds=3),
 }
+
+
 @dataclasses.dataclass(frozen=True)
 class Kind:
     """One training of the bundle (``--recipe``): its recipes by scale, where it reports, what
@@ -385,9 +387,8 @@ def prepare(work: Path, scale: Scale, recipe: Recipe) -> list:
 
 @dataclasses.dataclass(frozen=True)
 class Plan:
-    """Which training of the bundle: the fine-tuning recipe of the bundled design, the long
-    training of a design (:data:`LONG_RECIPES`) or its fine-cell training
-    (:data:`CELLS_RECIPES`), the last two with their resume packs."""
+    """Which training of the bundle (a kind of :data:`KINDS`) of which design, with its resume
+    pack (every kind but finetune) and the script's output folder."""
 
     kind: str = "finetune"             # a key of KINDS
     design: str = DEFAULT_DESIGN       # a CPU-scale preset name
@@ -860,8 +861,7 @@ def main(argv=None) -> int:
     if args.until is not None and args.until < 1:
         parser.error(f"--until must be a positive step; found {args.until}")
     scale = SCALES[args.scale]
-    # The long and fine-cell trainings report in their own sections; the fine-tuning recipe in
-    # the bundle's.
+    # Each kind reports in its own section; the fine-tuning recipe in the bundle's.
     kind = KINDS[args.recipe]
     name = kind.section
     work, out, results = resolve_paths(args, name)
