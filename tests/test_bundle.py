@@ -303,6 +303,23 @@ def test_a_bundle_averaged_from_packs_holds_the_mean_of_their_variables(tmp_path
     with pytest.raises(ValueError, match=r"^b: variable unet/\S+ is float32 \(8,\); a has "
                                          r"float32 \(4,\)$"):
         average_variables([want[0], model_variables(other)], ["a", "b"])
+    # A pack is a model by itself (what --ckpt and --init-from take): the first model's
+    # variables, its network and list; a pack that does not say its network is refused in one
+    # line naming the file and the field.
+    alone, alone_mc, alone_cand = load_model(packs[0].folder)
+    assert alone_mc == cfg.model_config()
+    np.testing.assert_allclose(np.asarray(alone_cand), np.linspace(0.5, 100.0, 16), rtol=1e-6)
+    got = flatten_variables(nnx.to_pure_dict(nnx.state(alone)))
+    assert set(got) == set(want[0])
+    for k, a in want[0].items():
+        np.testing.assert_array_equal(got[k], a, err_msg=k)
+    doc_path = tmp_path / "pack-other" / "pack.json"
+    doc = json.loads(doc_path.read_text())
+    del doc["model_config"]
+    doc_path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"pack-other/pack.json: field 'model_config' must be "
+                                         r"present"):
+        load_model(tmp_path / "pack-other")
     fewer = dict(want[1])
     fewer.pop(sorted(fewer)[0])
     with pytest.raises(ValueError, match=f"^b: holds other network variables than a .*"
