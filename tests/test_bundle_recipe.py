@@ -96,41 +96,45 @@ def test_the_more_recipe_fine_tunes_the_fine_bundle_on_two_rounds_read_by_the_mo
     assert len(folders) == 16 and folders[8] == str(tmp_path / "data" / "mix-paper-train-r1")
 
 
-def test_the_third_draw_continues_the_doubled_mixtures_pack_on_three_rounds(tmp_path):
-    """``--recipe third``: starts from the doubled mixture's committed pack (a model that
-    ``--init-from`` reads: the same network as the run's, the fine bundle's read by the mode),
-    is compared with it, trains on the 16 folders of the doubled mixture plus 8 new ones whose
-    scene seeds and lens seeds are new, in its own run and pack folders."""
+@pytest.mark.parametrize("kind, before, earlier", [("third", "more", B.MORE_RECIPES),
+                                                    ("fourth", "third", B.THIRD_RECIPES)])
+def test_a_new_draw_continues_the_previous_draws_pack_on_one_more_round(tmp_path, kind, before,
+                                                                        earlier):
+    """``--recipe third`` / ``fourth``: starts from the previous kind's committed pack (a model
+    that ``--init-from`` reads: the same network as the run's, the fine bundle's read by the
+    mode), is compared with it, trains on every folder of the previous draws plus 8 new ones
+    whose scene seeds and lens seeds are new, in its own run and pack folders."""
     from gijax.store import load_model
 
     cpu, smoke = scales.SCALES["cpu"], scales.SCALES["smoke"]
     design = "G16VV-cpu-zncc"
-    plan = B.Plan("third", design, B.pack_folder(cpu, design, tmp_path, "third"), tmp_path)
+    plan = B.Plan(kind, design, B.pack_folder(cpu, design, tmp_path, kind), tmp_path)
     packs = Path(B.__file__).resolve().parent / "packs"
-    assert plan.pack == packs / f"third-{design}"
+    assert plan.pack == packs / f"{kind}-{design}"
     recipe = plan.recipe(cpu)
-    assert recipe.rounds == 3 and recipe.init_from == str(packs / f"more-{design}")
-    assert B.KINDS["third"].previous(cpu, design, tmp_path) == recipe.init_from
+    rounds = earlier["cpu"].rounds + 1
+    assert recipe.rounds == rounds and recipe.init_from == str(packs / f"{before}-{design}")
+    assert B.KINDS[kind].previous(cpu, design, tmp_path) == recipe.init_from
     cfg = B.train_config(cpu, recipe, 0, plan)
     _, start, cand = load_model(recipe.init_from)
     _, fine, fine_cand = load_model(f"{design}-fine")
     assert cfg.model_config() == start == dataclasses.replace(fine, estimate="mode")
     np.testing.assert_allclose(cand, fine_cand, rtol=1e-6)
     roles = B.mixture_roles(recipe)
-    doubled = B.mixture_roles(B.MORE_RECIPES["cpu"])
-    assert len(roles) == 24 and roles[:16] == doubled
-    assert roles[16] == ("mix-paper-train-r2", "paper-train", None)
+    previous = B.mixture_roles(earlier["cpu"])
+    assert len(roles) == 8 * rounds and roles[:8 * (rounds - 1)] == previous
+    assert roles[8 * (rounds - 1)] == (f"mix-paper-train-r{rounds - 1}", "paper-train", None)
     lens = [s for _, _, s in roles if s is not None]
-    assert len(set(lens)) == len(lens) == 21
+    assert len(set(lens)) == len(lens) == 7 * rounds
     taken = set(scales.DATA_SEEDS.values()) | set(learned_candidates.SEEDS.values())
     assert not taken & {B.MIX_SEED + i for i in range(len(roles))}
     data = [{"role": r, "path": str(tmp_path / "data" / r)} for r, _, _ in roles]
     argv = [str(a) for a in B.train_argv(tmp_path, cpu, recipe, 0, data, plan)]
-    assert argv[argv.index("--out") + 1] == str(tmp_path / "runs" / f"third-{design}")
-    assert argv[argv.index("--init-from") + 1] == str(packs / f"more-{design}")
-    assert len(argv[argv.index("--data") + 1:argv.index("--val")]) == 24
+    assert argv[argv.index("--out") + 1] == str(tmp_path / "runs" / f"{kind}-{design}")
+    assert argv[argv.index("--init-from") + 1] == str(packs / f"{before}-{design}")
+    assert len(argv[argv.index("--data") + 1:argv.index("--val")]) == 8 * rounds
     # At the smoke scale: random weights, as every recipe's pipeline check.
-    assert B.Plan("third", design, tmp_path / "p", tmp_path).recipe(smoke).init_from is None
+    assert B.Plan(kind, design, tmp_path / "p", tmp_path).recipe(smoke).init_from is None
 
 
 def _row(test, model, lst, mae):
