@@ -246,6 +246,8 @@ class Kind:
     network: Optional[str] = None
     grown: tuple = ()        # GROWN_FIELDS switched on (starting as the identity)
     packed: bool = True      # trained in pieces from a committed resume pack
+    # What the bundle's provenance adds to "starting from ..." for this kind's network.
+    changes: str = ""
 
 
 def _pack_of_kind(kind: str) -> Callable:
@@ -267,7 +269,9 @@ KINDS = {
                   ("fine-tuned from its bundle with the cost volume at the output's resolution",
                    "from random weights with the cost volume at the output's resolution"),
                   start=lambda scale, design, out: design,
-                  previous=lambda scale, design, out: f"gijax/assets/{design}", network="cells"),
+                  previous=lambda scale, design, out: f"gijax/assets/{design}", network="cells",
+                  changes=" with its cost volume at the output's resolution (one cost cell per "
+                          "output pixel)"),
     "skip": Kind(SKIP_RECIPES, SKIP_NAME, "The matching skip",
                  "--design's fine bundle (<design>-fine) with the matching cost's skip to the "
                  "logits, fine-tuned for SKIP_RECIPES' steps, in pieces like 'long'",
@@ -276,7 +280,8 @@ KINDS = {
                   "from random weights with the matching cost's skip to the logits"),
                  start=lambda scale, design, out: f"{design}-fine",
                  previous=lambda scale, design, out: f"gijax/assets/{design}-fine", network="mode",
-                 grown=("matching_skip",)),
+                 grown=("matching_skip",),
+                 changes=", adding the matching cost's skip to the logits (zero at the start)"),
     "more": Kind(MORE_RECIPES, MORE_NAME, "The doubled mixture",
                  "--design's fine bundle fine-tuned on the mixture and a second draw of it "
                  "for MORE_RECIPES' steps, in pieces like 'long'",
@@ -800,10 +805,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"{recipe.batch} ({kept}), augmentation "
                           f"{recipe.augment}, calibration errors up to "
                           f"{recipe.calibration_deg:g} deg, starting from {start}"
-                          + (" with its cost volume at the output's resolution (one cost cell "
-                             "per output pixel)" if plan.kind == "cells" else "")
-                          + (", adding the matching cost's skip to the logits (zero at the "
-                             "start)" if plan.kind == "skip" else "")
+                          + KINDS[plan.kind].changes
                           + (f"; read by its {ESTIMATE_WORDS[estimate]}" if estimate else "")),
            "initialised_from": init,
            "limitations": LIMITATIONS,
