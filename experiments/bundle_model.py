@@ -72,7 +72,7 @@ committed pack (``experiments/packs/third-<design>``), on the mixture's four dra
     python experiments/bundle_model.py --scale cpu --recipe fourth --design G16VV-cpu-zncc --until 1000
 
 Every recipe kind is one entry of :data:`KINDS`: its recipes, report section, start, the model
-it is compared with, and its network.
+it is compared with, its network and what it changes in it.
 """
 
 from __future__ import annotations
@@ -170,12 +170,15 @@ LONG_RECIPES = {
     "cpu": Recipe(**MIXTURES["cpu"], steps=40000, batch=8, lr=4e-4, warmup=400,
                   val_every=1000, ckpt_every=250),
 }
+# Every fine-tuning kind's smoke recipe (a pipeline check from random weights: there is no
+# smoke-sized bundle or pack); the kinds that draw the mixture again add their rounds.
+SMOKE_FINETUNE = Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
+                        ckpt_every=2)
 # The bundled network of a design fine-tuned with its cost volume at the output's resolution
 # (:func:`cell_overrides`), from the design's bundle, on the same mixture. At the smoke scale
 # it starts from random weights (there is no smoke-sized bundle): a pipeline check.
 CELLS_RECIPES = {
-    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
-                    ckpt_every=2),
+    "smoke": SMOKE_FINETUNE,
     "cpu": Recipe(**MIXTURES["cpu"], steps=6000, batch=8, lr=1e-4, warmup=200, val_every=250,
                   ckpt_every=100),
 }
@@ -183,8 +186,7 @@ CELLS_RECIPES = {
 # matching cost's skip to the logits (gijax.nn.matching_skip, zero at the start: the same
 # outputs) and is fine-tuned with it on the same mixture, validated by the mode it is read by.
 SKIP_RECIPES = {
-    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
-                    ckpt_every=2),
+    "smoke": SMOKE_FINETUNE,
     # A gentle rate: restarting the trained network at the fine-cell training's 1e-4 raised
     # its validation MAE (mode) from 0.0155 to 0.0158 in 250 steps. The skip's own weights
     # still move fast enough through its gain (gijax.nn.matching_skip.SKIP_GAIN).
@@ -196,8 +198,7 @@ SKIP_RECIPES = {
 # read by. On fresh scenes of paper-train the fine bundle's MAE is 0.60 x RS-E32's against
 # 0.54 x on the scenes it trained on: the gap more data closes.
 MORE_RECIPES = {
-    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
-                    ckpt_every=2, rounds=2),
+    "smoke": dataclasses.replace(SMOKE_FINETUNE, rounds=2),
     "cpu": Recipe(**MIXTURES["cpu"], steps=1500, batch=8, lr=5e-5, warmup=75, val_every=250,
                   ckpt_every=100, rounds=2),
 }
@@ -206,8 +207,7 @@ MORE_RECIPES = {
 # paper-test1 the doubled mixture left the fine bundle's 0.753 x RS-E32 where it was while
 # every wider rig and the validation set improved; the fresh-scene gap had not closed.
 THIRD_RECIPES = {
-    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
-                    ckpt_every=2, rounds=3),
+    "smoke": dataclasses.replace(SMOKE_FINETUNE, rounds=3),
     "cpu": Recipe(**MIXTURES["cpu"], steps=1200, batch=8, lr=4e-5, warmup=60, val_every=200,
                   ckpt_every=100, rounds=3),
 }
@@ -218,8 +218,7 @@ THIRD_RECIPES = {
 # close. A gentler rate than the third's: its validation MAE had flattened (0.0152-0.0153
 # over its last 600 steps).
 FOURTH_RECIPES = {
-    "smoke": Recipe(**MIXTURES["smoke"], steps=4, batch=2, lr=1e-4, warmup=1, val_every=2,
-                    ckpt_every=2, rounds=4),
+    "smoke": dataclasses.replace(SMOKE_FINETUNE, rounds=4),
     "cpu": Recipe(**MIXTURES["cpu"], steps=1000, batch=8, lr=3e-5, warmup=50, val_every=200,
                   ckpt_every=100, rounds=4),
 }
@@ -253,6 +252,20 @@ class Kind:
 def _pack_of_kind(kind: str) -> Callable:
     """The start of a kind that continues another kind's run: that run's resume pack."""
     return lambda scale, design, out: str(pack_folder(scale, design, out, kind))
+
+
+def _next_draw(recipes: dict, section: str, title: str, before: str, network: str,
+               draws: str) -> Kind:
+    """A kind that continues kind ``before``'s network (``network`` in words), read from its
+    committed pack, on one more draw of the mixture (``draws`` in all), compared with it."""
+    recipes_name = f"{section.split('_')[0].upper()}_RECIPES"
+    return Kind(recipes, section, title,
+                f"{network} (the last step in its committed pack, experiments/packs/"
+                f"{before}-<design>) fine-tuned on the mixture's {draws} draws for "
+                f"{recipes_name}' steps, in pieces like 'long'",
+                (f"fine-tuned from {network} on the mixture's {draws} draws, validated by the "
+                 f"sub-pixel mode", f"from random weights on the mixture's {draws} draws"),
+                start=_pack_of_kind(before), previous=_pack_of_kind(before), network="mode")
 
 
 KINDS = {
@@ -290,23 +303,10 @@ KINDS = {
                   "from random weights on the mixture and a second draw of it"),
                  start=lambda scale, design, out: f"{design}-fine",
                  previous=lambda scale, design, out: f"gijax/assets/{design}-fine", network="mode"),
-    "third": Kind(THIRD_RECIPES, THIRD_NAME, "The third draw",
-                  "the doubled mixture's network (the last step in its committed pack, "
-                  "experiments/packs/more-<design>) fine-tuned on the mixture's three draws "
-                  "for THIRD_RECIPES' steps, in pieces like 'long'",
-                  ("fine-tuned from the doubled mixture's network on the mixture's three "
-                   "draws, validated by the sub-pixel mode",
-                   "from random weights on the mixture's three draws"),
-                  start=_pack_of_kind("more"), previous=_pack_of_kind("more"), network="mode"),
-    "fourth": Kind(FOURTH_RECIPES, FOURTH_NAME, "The fourth draw",
-                   "the third draw's network (the last step in its committed pack, "
-                   "experiments/packs/third-<design>) fine-tuned on the mixture's four draws "
-                   "for FOURTH_RECIPES' steps, in pieces like 'long'",
-                   ("fine-tuned from the third draw's network on the mixture's four draws, "
-                    "validated by the sub-pixel mode",
-                    "from random weights on the mixture's four draws"),
-                   start=_pack_of_kind("third"), previous=_pack_of_kind("third"),
-                   network="mode"),
+    "third": _next_draw(THIRD_RECIPES, THIRD_NAME, "The third draw", "more",
+                        "the doubled mixture's network", "three"),
+    "fourth": _next_draw(FOURTH_RECIPES, FOURTH_NAME, "The fourth draw", "third",
+                         "the third draw's network", "four"),
 }
 RECIPE_KINDS = tuple(KINDS)
 

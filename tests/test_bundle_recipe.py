@@ -96,10 +96,8 @@ def test_the_more_recipe_fine_tunes_the_fine_bundle_on_two_rounds_read_by_the_mo
     assert len(folders) == 16 and folders[8] == str(tmp_path / "data" / "mix-paper-train-r1")
 
 
-@pytest.mark.parametrize("kind, before, earlier", [("third", "more", B.MORE_RECIPES),
-                                                    ("fourth", "third", B.THIRD_RECIPES)])
-def test_a_new_draw_continues_the_previous_draws_pack_on_one_more_round(tmp_path, kind, before,
-                                                                        earlier):
+@pytest.mark.parametrize("kind, before", [("third", "more"), ("fourth", "third")])
+def test_a_new_draw_continues_the_previous_draws_pack_on_one_more_round(tmp_path, kind, before):
     """``--recipe third`` / ``fourth``: starts from the previous kind's committed pack (a model
     that ``--init-from`` reads: the same network as the run's, the fine bundle's read by the
     mode), is compared with it, trains on every folder of the previous draws plus 8 new ones
@@ -112,7 +110,8 @@ def test_a_new_draw_continues_the_previous_draws_pack_on_one_more_round(tmp_path
     packs = Path(B.__file__).resolve().parent / "packs"
     assert plan.pack == packs / f"{kind}-{design}"
     recipe = plan.recipe(cpu)
-    rounds = earlier["cpu"].rounds + 1
+    earlier = B.KINDS[before].recipes["cpu"]
+    rounds = earlier.rounds + 1
     assert recipe.rounds == rounds and recipe.init_from == str(packs / f"{before}-{design}")
     assert B.KINDS[kind].previous(cpu, design, tmp_path) == recipe.init_from
     cfg = B.train_config(cpu, recipe, 0, plan)
@@ -121,7 +120,7 @@ def test_a_new_draw_continues_the_previous_draws_pack_on_one_more_round(tmp_path
     assert cfg.model_config() == start == dataclasses.replace(fine, estimate="mode")
     np.testing.assert_allclose(cand, fine_cand, rtol=1e-6)
     roles = B.mixture_roles(recipe)
-    previous = B.mixture_roles(earlier["cpu"])
+    previous = B.mixture_roles(earlier)
     assert len(roles) == 8 * rounds and roles[:8 * (rounds - 1)] == previous
     assert roles[8 * (rounds - 1)] == (f"mix-paper-train-r{rounds - 1}", "paper-train", None)
     lens = [s for _, _, s in roles if s is not None]
