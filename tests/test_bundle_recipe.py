@@ -136,6 +136,45 @@ def test_a_new_draw_continues_the_previous_draws_pack_on_one_more_round(tmp_path
     assert B.Plan(kind, design, tmp_path / "p", tmp_path).recipe(smoke).init_from is None
 
 
+def test_the_dense_kind_reads_the_fourth_draws_network_at_twice_its_candidates(tmp_path):
+    """``--recipe dense``: the fourth draw's committed pack, at 32 candidates where it has 16
+    (the count is no weight's size: the pack's variables initialise the run's network), on the
+    fourth draw's mixture, compared with that pack; its command overrides the count."""
+    from flax import nnx
+
+    from gijax.model import OmniStereoNet
+    from gijax.store import load_model
+    from gijax.train.run_folder import initial_variables
+
+    cpu = scales.SCALES["cpu"]
+    design = "G16VV-cpu-zncc"
+    plan = B.Plan("dense", design, B.pack_folder(cpu, design, tmp_path, "dense"), tmp_path)
+    packs = Path(B.__file__).resolve().parent / "packs"
+    recipe = plan.recipe(cpu)
+    assert recipe.init_from == str(packs / f"fourth-{design}")
+    assert B.KINDS["dense"].previous(cpu, design, tmp_path) == recipe.init_from
+    assert B.mixture_roles(recipe) == B.mixture_roles(B.KINDS["fourth"].recipes["cpu"])
+    cfg = B.train_config(cpu, recipe, 0, plan)
+    _, start, _ = load_model(recipe.init_from)
+    assert start.num_candidates == 16
+    mc = cfg.model_config()
+    assert mc == dataclasses.replace(start, num_candidates=32)
+    data = [{"role": r, "path": str(tmp_path / "data" / r)} for r, _, _ in B.mixture_roles(recipe)]
+    argv = [str(a) for a in B.train_argv(tmp_path, cpu, recipe, 0, data, plan)]
+    assert "num_candidates=32" in argv
+    # The pack's weights become the 32-candidate network's, every variable of the same shape.
+    model = nnx.eval_shape(lambda: OmniStereoNet(mc, nnx.Rngs(0)))
+    _, params, rest = nnx.split(model, nnx.Param, ...)
+    got, _ = initial_variables(cfg, mc, params, rest)
+    start_net, _, _ = load_model(recipe.init_from)
+    want = nnx.to_pure_dict(nnx.split(start_net, nnx.Param, ...)[1])
+    flat_got = dict(nnx.traversals.flatten_mapping(nnx.to_pure_dict(got)))
+    flat_want = dict(nnx.traversals.flatten_mapping(want))
+    assert flat_got.keys() == flat_want.keys()
+    for k in flat_want:
+        np.testing.assert_array_equal(np.asarray(flat_got[k]), np.asarray(flat_want[k]))
+
+
 def _row(test, model, lst, mae):
     return {"test": test, "model": model, "list": lst, "mae": mae}
 

@@ -49,10 +49,12 @@ OUTPUT_STRIDES = (1, 2)
 # weight: a model trained at one resolution, coverage, input scale, loss or estimate starts a run
 # at another (G16VV-cpu -> G16VV-cpu-fine; a hemisphere model fine-tuned on a full-sphere rig; a
 # small rig's images at full size; a volume-loss model fine-tuned on the smooth L1 of its
-# estimate, read by the mean or by the sub-pixel mode). The variable shapes are still checked one
-# by one after the configuration.
+# estimate, read by the mean or by the sub-pixel mode; a 16-candidate network fine-tuned at 32:
+# the cost volume's candidate axis is convolved, never a weight's size). The variable shapes are
+# still checked one by one after the configuration.
 WEIGHTLESS_FIELDS = frozenset({"name", "conv3d", "cost_hw", "output_hw", "output_stride",
-                               "panorama", "image_scale", "loss", "estimate", "mode_window"})
+                               "panorama", "image_scale", "loss", "estimate", "mode_window",
+                               "num_candidates"})
 # Fields that add parameters starting as the identity (a zero-initialised path added to the
 # logits), with the value that leaves them out: a trained network without them initialises one
 # with them (``gijax train --init-from``), whose outputs are then the same until it trains.
