@@ -75,7 +75,7 @@ The dense candidates (``--recipe dense``) read the fourth draw's network (its co
 twice its candidates, 32 where it was trained at 16 (the weights do not depend on the count),
 and fine-tune it so on the mixture's four draws (:data:`DENSE_RECIPES`), compared with it:
 
-    python experiments/bundle_model.py --scale cpu --recipe dense --design G16VV-cpu-zncc --until 1200
+    python experiments/bundle_model.py --scale cpu --recipe dense --design G16VV-cpu-zncc --until 600
 
 Every recipe kind is one entry of :data:`KINDS`: its recipes, report section, start, the model
 it is compared with, its network and what it changes in it.
@@ -235,11 +235,13 @@ FOURTH_RECIPES = {
 # candidates leave 0.12-0.16 1/m between neighbours and RS-E32's 32 half that: the sub-candidate
 # read-out, not the choice of candidate, is what trails. Read at 32 candidates without training
 # it is worse (demo seed 2: 0.0221 against 0.0182 at 16): the U-Net's filters along the
-# candidate axis learned one spacing. A higher rate than the fourth draw's for that relearning.
+# candidate axis learned one spacing. A higher rate than the fourth draw's for that relearning;
+# a step costs about 6 s (twice the candidates), so the schedule is half the fourth draw's
+# steps.
 DENSE_RECIPES = {
     "smoke": dataclasses.replace(SMOKE_FINETUNE, rounds=4),
-    "cpu": Recipe(**MIXTURES["cpu"], steps=1200, batch=8, lr=6e-5, warmup=60, val_every=200,
-                  ckpt_every=100, rounds=4),
+    "cpu": Recipe(**MIXTURES["cpu"], steps=600, batch=8, lr=6e-5, warmup=30, val_every=150,
+                  ckpt_every=50, rounds=4),
 }
 
 
