@@ -346,10 +346,23 @@ KINDS = {
 }
 RECIPE_KINDS = tuple(KINDS)
 
-# How a bundle reads its distances (``--estimate``; gijax.nn.regressor), in the provenance.
+# How a bundle reads its distances (``--estimate``, ``--mode-pick``; gijax.nn.regressor), in
+# the provenance.
 ESTIMATE_WORDS = {"mean": "soft-argmax (the mean over the candidates)",
                   "mode": "sub-pixel mode (the mean within two candidates of the most probable "
                           "one; the training validated the same weights by their mean)"}
+
+
+def reading_words(reading: dict) -> str:
+    """How a bundle read by ``reading`` (``estimate`` and ``mode_pick``, each optional) reads
+    its distances, in words ('' for the run's own reading)."""
+    words = []
+    if reading.get("estimate"):
+        words.append(ESTIMATE_WORDS[reading["estimate"]])
+    if reading.get("mode_pick"):
+        words.append(f"the most probable candidate being the one with the most probability "
+                     f"within {reading['mode_pick']} on each side")
+    return "; ".join(words)
 DEFAULT_DESIGN = "G16VV-cpu"
 # The start record of a run trained in pieces, inside its pack (see initial_weights).
 INIT_FILE = "init.json"
@@ -642,12 +655,13 @@ def _first_started(log: Path) -> Optional[dict]:
 # --------------------------------------------------------------------------- evaluation
 
 def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
-             lists=("train", "spacing"), estimates=None) -> tuple[list, dict]:
+             lists=("train", "spacing"), readings=None) -> tuple[list, dict]:
     """Rows (model, list, test rig, metrics) for every model in ``models`` (label -> path)
     with each of ``lists`` (the training and the recomputed list), and RTSS, on every test
-    set of ``tests``. ``estimates`` (label -> 'mean' or 'mode') reads a model otherwise than
-    its configuration does (``gijax eval --estimate``)."""
-    estimates = estimates or {}
+    set of ``tests``. ``readings`` (label -> {'estimate': 'mean' or 'mode', 'mode_pick': n},
+    each optional) reads a model otherwise than its configuration does (``gijax eval
+    --estimate``)."""
+    readings = readings or {}
     rows, preds = [], {}
     for test in tests:
         data = work / "data" / test
@@ -662,12 +676,11 @@ def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
                 log(f"  {label}, {lst} list, on {test}")
                 key = {"method": label, "model": model_id(path), "data": test, "samples": n,
                        "candidates": lst}
-                estimate = estimates.get(label)
-                if estimate:
-                    key["estimate"] = estimate
+                reading = {k: v for k, v in readings.get(label, {}).items() if v is not None}
+                key.update(reading)
                 res = cached_evaluation(
                     work, key,
-                    lambda rig, p=path, s=lst, e=estimate: net_predictor(Path(p), rig, s, e),
+                    lambda rig, p=path, s=lst, r=reading: net_predictor(Path(p), rig, s, **r),
                     data)
                 rows.append(_row(test, label, "learned", lst, res))
                 preds[(test, f"{label}, {lst}")] = res["first_prediction"]
@@ -805,12 +818,15 @@ def write_figures(out: Path, work: Path, scale: Scale, preds: dict, run: Path,
 
 def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, prov: dict,
             data: list, trained: dict, targets: list, plan: Plan = FINETUNE,
-            estimate: Optional[str] = None) -> None:
+            reading: Optional[dict] = None) -> None:
     """The bundle: best validated checkpoint, config, and beside them PROVENANCE.json (every
     command, seeds, steps, validations, targets), the learning curve and the figures;
-    ``estimate`` (when given) is how the bundle reads its distances."""
+    ``reading`` (``estimate``, ``mode_pick``; each when given) is how the bundle reads its
+    distances."""
     from gijax.train.bundle import write_bundle
 
+    reading = {k: v for k, v in (reading or {}).items() if v is not None}
+    words = reading_words(reading)
     mix = [d for d in data if d["role"].startswith("mix-")]
     records = metrics_records(run)
     lenses = sum(1 for d in mix if d["role"].startswith("mix-lens-"))
@@ -848,7 +864,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
                           f"{recipe.augment}, calibration errors up to "
                           f"{recipe.calibration_deg:g} deg, starting from {start}"
                           + KINDS[plan.kind].changes
-                          + (f"; read by its {ESTIMATE_WORDS[estimate]}" if estimate else "")),
+                          + (f"; read by its {words}" if words else "")),
            "initialised_from": init,
            "limitations": LIMITATIONS,
            "made_by": prov["command"], "git_revision": prov["git_revision"],
@@ -856,7 +872,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
            + [next(d["command"] for d in data if d["role"] == "val"), trained["command"],
               f"python -c \"from gijax.train.bundle import write_bundle; write_bundle("
               f"'{run}', '{bundle}', provenance"
-              + (f", estimate='{estimate}'" if estimate else "") + ")\""],
+              + "".join(f", {k}={v!r}" for k, v in reading.items()) + ")\""],
            "data": [{k: d[k] for k in ("role", "rig", "lens", "fov_deg", "models", "spacing_m",
                                        "cameras", "samples", "seed") if k in d} for d in data],
            "runs": run_pieces(records),
@@ -869,7 +885,7 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
     # The figures go in with the weights, in one atomic replacement of the bundle folder.
     written = write_bundle(run, bundle, doc, figures={
         "learning_curve.png": figures["curve"],
-        **{f"validation_{t}.png": figures[t] for t in TESTS}}, estimate=estimate)
+        **{f"validation_{t}.png": figures[t] for t in TESTS}}, **reading)
     log(f"wrote the bundle {written}")
 
 
@@ -920,6 +936,13 @@ def main(argv=None) -> int:
                              "evaluated so and written into the published bundle: 'mean' "
                              "(soft-argmax) or 'mode' (the sub-pixel mode, gijax.nn.regressor); "
                              "the same weights either way (default: as the run is configured)")
+    parser.add_argument("--mode-pick", type=int, default=None, metavar="N",
+                        help="how the new bundle's sub-pixel mode finds the most probable "
+                             "candidate, evaluated so and written into the published bundle: "
+                             "the one with the most probability within N candidates on each "
+                             "side (0: the single most probable, Tulyakov's rule; "
+                             "gijax.nn.regressor); the same weights either way (default: as "
+                             "the run is configured)")
     parser.add_argument("--until", type=int, default=None, metavar="STEP",
                         help="train only to this step (a milestone), then evaluate and "
                              "publish what the run has; the same command with a later STEP "
@@ -937,6 +960,10 @@ def main(argv=None) -> int:
     get_preset(args.design)                       # one line naming the valid presets
     if args.until is not None and args.until < 1:
         parser.error(f"--until must be a positive step; found {args.until}")
+    if args.mode_pick is not None and args.mode_pick < 0:
+        parser.error(f"--mode-pick must be 0 or more candidates; found {args.mode_pick}")
+    reading = {k: v for k, v in (("estimate", args.estimate), ("mode_pick", args.mode_pick))
+               if v is not None}
     scale = SCALES[args.scale]
     # Each kind reports in its own section; the fine-tuning recipe in the bundle's.
     kind = KINDS[args.recipe]
@@ -962,7 +989,7 @@ def main(argv=None) -> int:
     if previous != "none":
         models["previous bundle"] = Path(previous)
     t0 = time.perf_counter()
-    rows, preds = evaluate(work, scale, models, estimates={"new bundle": args.estimate})
+    rows, preds = evaluate(work, scale, models, readings={"new bundle": reading})
     durations["evaluation"] = time.perf_counter() - t0
     targets = check_targets(rows, "new bundle")
     log_targets(targets)
@@ -970,7 +997,8 @@ def main(argv=None) -> int:
     prov = provenance_record(f"{NAME}.py", argv, scale, args.seed, work, started, durations,
                              data)
     prov["recipe"] = {**dataclasses.asdict(recipe), "kind": plan.kind, "design": plan.design,
-                      "until": args.until, "estimate": args.estimate}
+                      "until": args.until, "estimate": args.estimate,
+                      "mode_pick": args.mode_pick}
     # The scale's summary describes the tables' per-model training; this script trains by its
     # recipe, so the provenance states that instead.
     tests = sorted({d["samples"] for d in data if d["role"] in TESTS})
@@ -989,7 +1017,7 @@ def main(argv=None) -> int:
         f"{recipe.scenes} scenes: paper-train, paper-train through drawn lenses, random "
         f"layouts through drawn lenses), {trained['trained_steps']} of {recipe.steps} steps of "
         f"{recipe.batch} ({how})"
-        + (f", the new bundle read by its {ESTIMATE_WORDS[args.estimate]}" if args.estimate
+        + (f", the new bundle read by its {reading_words(reading)}" if reading
            else "") + ", evaluated on "
         f"the tables' held-out scenes (inverse distance, 1/m, the paper's metric definitions; "
         f"'spacing' is the paper's recomputed list, the closed form at the rig's camera "
@@ -1004,7 +1032,7 @@ def main(argv=None) -> int:
         model = (preset_name(scale, MODEL) if plan.kind == "finetune"
                  else design_preset(scale, plan.design))
         publish(run, Path(args.publish), model, recipe, figures, prov, data, trained, targets,
-                plan, args.estimate)
+                plan, reading)
     return 0
 
 

@@ -140,20 +140,23 @@ def _example(rig, dtype) -> dict:
 
 
 def net_predictor(run_dir: Path, rig, candidates_spec: str,
-                  estimate: Optional[str] = None) -> Predictor:
+                  estimate: Optional[str] = None, mode_pick: Optional[int] = None) -> Predictor:
     """A trained network (a run folder's best validated checkpoint, or a bundle) on raw
     fisheye images of ``rig`` (:class:`gijax.predict.LearnedImagePredictor`).
 
     The timed call includes the resampling to surrogate images, as the classical baseline's
     includes its matching views. ``candidates_spec`` is ``gijax eval``'s ``--candidates``,
-    ``estimate`` its ``--estimate`` (None: the model's own).
+    ``estimate`` its ``--estimate`` and ``mode_pick`` the mode's pick
+    (:mod:`gijax.nn.regressor`; None: the model's own).
     """
     from gijax.candidates.spec import model_candidates
-    from gijax.model import with_estimate
+    from gijax.model import reconfigured, with_estimate
     from gijax.predict import LearnedImagePredictor
 
     model, mc, train_cand = loaded_model(run_dir)
     model = with_estimate(model, estimate)
+    if mode_pick is not None and mode_pick != model.config.mode_pick:
+        model = reconfigured(model, mode_pick=mode_pick)
     mc = model.config
     cand, _ = model_candidates(candidates_spec, rig, mc, train=train_cand)
     return _one_sample(LearnedImagePredictor(model, rig, cand), _example(rig, np.uint8))

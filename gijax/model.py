@@ -275,7 +275,8 @@ class OmniStereoNet(nnx.Module):
         k = self.config.output_stride
         h, w = logits.shape[2:4]
         out = dict(regress(logits, candidates.astype(logits.dtype), (k * h, k * w),
-                           self.config.estimate, self.config.mode_window))
+                           self.config.estimate, self.config.mode_window,
+                           self.config.mode_pick))
         out["logits"] = logits
         return out
 

@@ -71,6 +71,19 @@ def test_a_bundle_written_with_another_estimate_reads_the_same_weights_so(tmp_pa
     np.testing.assert_allclose(np.asarray(out["inv_distance"]), np.asarray(want), rtol=1e-6)
     mean = estimate_inverse(out["prob"], 1.0 / jnp.asarray(cand, jnp.float32), "mean")
     assert np.abs(np.asarray(out["inv_distance"]) - np.asarray(mean)).max() > 1e-3
+    picked = save_bundle(model, config_file, tmp_path / "pick", estimate="mode", mode_pick=1)
+    assert (plain / WEIGHTS_FILE).read_bytes() == (picked / WEIGHTS_FILE).read_bytes()
+    c = json.loads((picked / "config.json").read_text())
+    assert c["model"].pop("mode_pick") == 1 and c["model"].pop("estimate") == "mode"
+    a["model"].pop("mode_pick", None)
+    assert a == c
+    loaded, mc, cand = load_model(picked)
+    assert mc == dataclasses.replace(cfg.model_config(), estimate="mode", mode_pick=1)
+    out = loaded.regress(logits, jnp.asarray(cand, jnp.float32))
+    want = estimate_inverse(out["prob"], 1.0 / jnp.asarray(cand, jnp.float32), "mode", 2, 1)
+    np.testing.assert_allclose(np.asarray(out["inv_distance"]), np.asarray(want), rtol=1e-6)
+    with pytest.raises(ValueError, match="pick"):
+        save_bundle(model, config_file, tmp_path / "never", mode_pick=-1)
     with pytest.raises(ValueError, match="estimate"):
         write_bundle(tmp_path / "run", tmp_path / "never", estimate="median")
     with pytest.raises(ValueError, match="estimate"):

@@ -426,9 +426,9 @@ def test_cached_evaluations_follow_the_model_its_weights_and_how_they_are_read(t
 
 
 def test_a_bundle_read_by_another_estimate_is_evaluated_under_its_own_key(tmp_path, monkeypatch):
-    """``--estimate``: the new bundle's evaluations are cached under a key naming the estimate
-    (and the model's hash), the previous bundle's and RS-E32's under their usual keys, and the
-    predictor the key stands for reads the model by that estimate."""
+    """``--estimate`` / ``--mode-pick``: the new bundle's evaluations are cached under a key
+    naming its reading (and the model's hash), the previous bundle's and RS-E32's under their
+    usual keys, and the predictor the key stands for reads the model so."""
     from gijax.store import resolve_model_path
 
     calls = []
@@ -443,14 +443,15 @@ def test_a_bundle_read_by_another_estimate_is_evaluated_under_its_own_key(tmp_pa
     rows, _ = B.evaluate(tmp_path, scales.SCALES["cpu"],
                          {"new bundle": bundle, "previous bundle": bundle},
                          tests=("paper-test1",), lists=("train",),
-                         estimates={"new bundle": "mode"})
+                         readings={"new bundle": {"estimate": "mode", "mode_pick": 1}})
     keys = [k for k, _ in calls]
     assert [k["method"] for k in keys] == ["RS-E32", "new bundle", "previous bundle"]
-    assert keys[1]["estimate"] == "mode" and "estimate" not in keys[2]
+    assert keys[1]["estimate"] == "mode" and keys[1]["mode_pick"] == 1
+    assert "estimate" not in keys[2] and "mode_pick" not in keys[2]
     assert keys[1]["model"] == keys[2]["model"] == B.model_id(bundle)
     seen = []
-    monkeypatch.setattr(B, "net_predictor", lambda *a: seen.append(a))
+    monkeypatch.setattr(B, "net_predictor", lambda *a, **k: seen.append(k))
     for _, make in calls[1:]:
         make("rig")
-    assert [a[3] for a in seen] == ["mode", None]
+    assert seen == [{"estimate": "mode", "mode_pick": 1}, {}]
     assert [r["model"] for r in rows] == ["RS-E32", "new bundle", "previous bundle"]

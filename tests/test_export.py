@@ -140,12 +140,13 @@ def test_rig_as_input_second_rig_equals_fresh_baked_export(setup):
 
 def test_matching_cost_model_exports_and_matches_jax(tmp_path):
     """The bundled design's parts: the matching-cost channel (grey sampling, cell ZNCC) and its
-    skip to the logits, the cost volume at the output's resolution and the sub-pixel mode export at opset 17 with sums
-    only (ReduceMean / ReduceMin would need axes attributes; the mode's window is a maximum and
+    skip to the logits, the cost volume at the output's resolution and the sub-pixel mode read
+    at a pick of one candidate export at opset 17 with sums only (ReduceMean / ReduceMin would
+    need axes attributes; the mode's pick and window are shifted sums, a maximum and
     comparisons, no ArgMax), match JAX and stay TensorRT-clean."""
     cfg = dataclasses.replace(TINY, name="tiny-zncc", matching_cost="zncc", matching_samples=2,
                               output_stride=1, output_hw=TINY.cost_hw, estimate="mode",
-                              matching_skip=True)
+                              matching_skip=True, mode_pick=1)
     rig = load_rig("paper-train")
     model = create_model(cfg, seed=1)
     images, masks = rendered_inputs(cfg, rig, seed=3)

@@ -476,28 +476,30 @@ def test_regress_matches_numpy_reference():
         regress(jnp.zeros((1, 8, 3, 5)), jnp.asarray(cand[:4]), (6, 10))
 
 
-def _np_mode(prob, inv_cand, window):
+def _np_mode(prob, inv_cand, window, pick=0):
     """The sub-pixel mode by arg-max (an independent reference: the library builds the window
     from a maximum and shifts): per pixel, the expectation over the candidates within
-    ``window`` places of the most probable one."""
+    ``window`` places of the one with the most probability within ``pick`` places."""
     b, d, h, w = prob.shape
     out = np.empty((b, h, w))
     for i in range(b):
         for y in range(h):
             for x in range(w):
                 p = prob[i, :, y, x]
-                a = int(np.argmax(p))
+                mass = [p[max(k - pick, 0):k + pick + 1].sum() for k in range(d)]
+                a = int(np.argmax(mass))
                 lo, hi = max(a - window, 0), min(a + window, d - 1) + 1
                 out[i, y, x] = np.dot(p[lo:hi], inv_cand[lo:hi]) / p[lo:hi].sum()
     return out
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 10_000), window=st.integers(0, 9), scale=st.floats(0.5, 6.0))
-def test_mode_estimate_matches_an_argmax_reference(seed, window, scale):
-    """Random logits (ties have probability zero): the mode estimate equals the arg-max
-    reference, lies between the window's candidates, and a window as wide as the list gives
-    the mean."""
+@given(seed=st.integers(0, 10_000), window=st.integers(0, 9), scale=st.floats(0.5, 6.0),
+       pick=st.integers(0, 3))
+def test_mode_estimate_matches_an_argmax_reference(seed, window, scale, pick):
+    """Random logits (ties have probability zero): the mode estimate, read at any pick,
+    equals the arg-max reference, lies between the window's candidates, and a window as wide
+    as the list gives the mean."""
     from gijax.nn.regressor import estimate_inverse
 
     rng = np.random.default_rng(seed)
@@ -507,14 +509,43 @@ def test_mode_estimate_matches_an_argmax_reference(seed, window, scale):
     inv_cand = 1.0 / np.geomspace(0.5, 100.0, 8)
     with jax.enable_x64(True):
         got = np.asarray(estimate_inverse(jnp.asarray(prob), jnp.asarray(inv_cand), "mode",
-                                          window))
+                                          window, pick))
         mean = np.asarray(estimate_inverse(jnp.asarray(prob), jnp.asarray(inv_cand), "mean"))
-    np.testing.assert_allclose(got, _np_mode(prob, inv_cand, window), rtol=1e-12)
+    np.testing.assert_allclose(got, _np_mode(prob, inv_cand, window, pick), rtol=1e-12)
     np.testing.assert_allclose(mean, np.einsum("bdhw,d->bhw", prob, inv_cand), rtol=1e-12)
     if window >= 7:
         np.testing.assert_allclose(got, mean, rtol=1e-12)
-    if window == 0:
+    if window == 0 and pick == 0:
         np.testing.assert_allclose(got, inv_cand[prob.argmax(1)], rtol=1e-12)
+
+
+def test_the_mode_read_at_a_pick_takes_the_surface_with_the_most_probability():
+    """A 32-candidate pixel seen on a trained network: a false match of 0.30 on candidate 14
+    and the true surface between candidates 26 and 27 (0.24 + 0.29). Tulyakov's rule (pick 0)
+    takes the false match; pick 1 (the most probability within one candidate on each side)
+    takes the surface, and the model reads the pick its configuration names."""
+    from gijax.nn.regressor import estimate_inverse
+
+    inv_cand = np.linspace(2.0, 0.01, 32)
+    p = np.full(32, 0.002)
+    p[[13, 14, 15, 25, 26, 27, 28]] = [0.03, 0.30, 0.07, 0.03, 0.24, 0.29, 0.02]
+    p /= p.sum()
+    prob = jnp.asarray(p.reshape(1, 32, 1, 1), jnp.float32)
+    inv = jnp.asarray(inv_cand, jnp.float32)
+    peak = float(estimate_inverse(prob, inv, "mode", 2, 0)[0, 0, 0])
+    surface = float(estimate_inverse(prob, inv, "mode", 2, 1)[0, 0, 0])
+    assert inv_cand[15] < peak < inv_cand[13]
+    assert inv_cand[28] < surface < inv_cand[25]
+    assert surface == pytest.approx(np.dot(p[24:29], inv_cand[24:29]) / p[24:29].sum(),
+                                    rel=1e-5)
+    logits = jnp.log(prob)
+    cand = 1.0 / inv
+    assert float(regress(logits, cand, (1, 1), "mode", 2, 1)["inv_distance"][0, 0, 0]) == \
+        pytest.approx(surface, rel=1e-5)
+    with pytest.raises(ValueError, match="pick"):
+        estimate_inverse(prob, inv, "mode", 2, -1)
+    with pytest.raises(ValueError, match="mode_pick"):
+        dataclasses.replace(get_preset("G16VV-cpu"), estimate="mode", mode_pick=-1)
 
 
 def test_mode_estimate_takes_the_stronger_surface_at_an_edge():

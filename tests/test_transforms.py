@@ -1788,6 +1788,12 @@ def _estimate_inverse(seed):
     return _probabilities(seed), 1.0 / candidates(seed, 6)
 
 
+@case(regressor.estimate_inverse, label="estimate_inverse[pick]",
+      call=lambda prob, inv: regressor.estimate_inverse(prob, inv, "mode", 2, 1), diff=(0, 1))
+def _estimate_inverse_pick(seed):
+    return _probabilities(seed), 1.0 / candidates(seed, 6)
+
+
 @case(regressor.mode_window_mask, call=lambda prob: regressor.mode_window_mask(prob, 2))
 def _mode_window_mask(seed):
     return (_probabilities(seed),)

@@ -209,7 +209,8 @@ def add_estimate_option(parser) -> None:
                              "the candidates: 'mean' (the paper's soft-argmax, the expectation "
                              "over all of them) or 'mode' (the expectation within the "
                              "configuration's mode_window, normally 2, of the most probable "
-                             "candidate: at an occlusion edge one surface instead of a "
+                             "candidate, read at its mode_pick: at an occlusion edge one "
+                             "surface instead of a "
                              "distance between two); the same weights either way. Default: "
                              "the model's own (its configuration's 'estimate')")
 

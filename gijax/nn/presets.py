@@ -54,7 +54,7 @@ OUTPUT_STRIDES = (1, 2)
 # still checked one by one after the configuration.
 WEIGHTLESS_FIELDS = frozenset({"name", "conv3d", "cost_hw", "output_hw", "output_stride",
                                "panorama", "image_scale", "loss", "estimate", "mode_window",
-                               "num_candidates"})
+                               "mode_pick", "num_candidates"})
 # Fields that add parameters starting as the identity (a zero-initialised path added to the
 # logits), with the value that leaves them out: a trained network without them initialises one
 # with them (``gijax train --init-from``), whose outputs are then the same until it trains.
@@ -93,7 +93,10 @@ class ModelConfig:
     (:mod:`gijax.nn.regressor`): ``'mean'`` (the paper's soft-argmax) or ``'mode'``, the
     expectation within ``mode_window`` candidates of the most probable one (the sub-pixel
     mode: a pixel on an occlusion boundary takes one surface instead of a distance between
-    two); neither changes a weight, and the volume loss does not depend on it.
+    two), the most probable one being the candidate with the most probability within
+    ``mode_pick`` candidates on each side (0: the single most probable candidate, Tulyakov's
+    rule; 1 keeps a surface that lies between two candidates from losing to a narrower false
+    match); none of them changes a weight, and the volume loss does not depend on them.
 
     Two choices keep the release's behaviour by default and offer gijax's alternative:
 
@@ -142,6 +145,7 @@ class ModelConfig:
     estimate: str = "mean"
     mode_window: int = 2
     matching_skip: bool = False
+    mode_pick: int = 0
 
     def __post_init__(self) -> None:
         def fail(field: str, expected: str, found) -> None:
@@ -206,6 +210,8 @@ class ModelConfig:
                  "'none')", self.matching_skip)
         if self.mode_window < 0:
             fail("mode_window", "a non-negative number of candidates", self.mode_window)
+        if self.mode_pick < 0:
+            fail("mode_pick", "a non-negative number of candidates", self.mode_pick)
 
     @property
     def feature_hw(self) -> tuple[int, int]:

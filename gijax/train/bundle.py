@@ -39,11 +39,12 @@ def check_replaceable(out_dir: str | os.PathLike, inputs=()) -> Path:
 
 def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLike,
                 provenance: dict | None = None, candidates=None, inputs=(),
-                figures: dict | None = None, estimate: str | None = None) -> Path:
+                figures: dict | None = None, estimate: str | None = None,
+                mode_pick: int | None = None) -> Path:
     """Write ``model``'s variables, a copy of its run's ``config.json`` and the provenance.
 
     ``candidates`` (a run's learned list) replaces the config's training list in the copy,
-    ``estimate`` its network's estimate.
+    ``estimate`` and ``mode_pick`` its network's (:mod:`gijax.nn.regressor`).
     ``figures`` maps file names of :data:`FIGURE_PATTERNS` to PNG files copied in.
     ``out_dir`` must be new or a bundle that holds none of ``inputs``
     (:func:`check_replaceable`). The folder is replaced whole and atomically, an interrupted
@@ -53,13 +54,13 @@ def save_bundle(model, config_file: str | os.PathLike, out_dir: str | os.PathLik
 
     from gijax.nn.regressor import check_estimate
 
-    if estimate is not None:
-        check_estimate(estimate)
+    if estimate is not None or mode_pick is not None:
+        check_estimate(estimate or "mode", 0, mode_pick or 0)
     figures = _checked_figures(figures)
     out_dir = check_replaceable(out_dir, (config_file, *inputs))
     weights = flatten_variables(nnx.to_pure_dict(nnx.state(model)))
     return _write(weights, config_file, out_dir, provenance, candidates, inputs, figures,
-                  estimate)
+                  {"estimate": estimate, "mode_pick": mode_pick})
 
 
 def _checked_figures(figures: dict | None) -> dict:
@@ -72,19 +73,20 @@ def _checked_figures(figures: dict | None) -> dict:
 
 
 def _write(weights: dict, config_file, out_dir: Path, provenance, candidates, inputs,
-           figures: dict, estimate: str | None = None) -> Path:
+           figures: dict, reading: dict | None = None) -> Path:
     """The bundle folder of ``weights`` (a ``weights.npz`` key -> array), replaced atomically;
-    ``estimate`` (when given) replaces the network configuration's."""
+    the fields of ``reading`` that are not None (how the network reads its distances:
+    ``estimate``, ``mode_pick``) replace the network configuration's."""
+    reading = {k: v for k, v in (reading or {}).items() if v is not None}
 
     def write(tmp: Path) -> None:
-        if candidates is None and estimate is None:
+        if candidates is None and not reading:
             shutil.copyfile(config_file, tmp / CONFIG_FILE)
         else:
             doc = json.loads(Path(config_file).read_text())
             if candidates is not None:
                 doc["candidates"] = [float(c) for c in np.asarray(candidates, np.float64)]
-            if estimate is not None:
-                doc["model"]["estimate"] = estimate
+            doc["model"].update(reading)
             (tmp / CONFIG_FILE).write_text(json.dumps(doc, indent=2) + "\n")
         np.savez(tmp / WEIGHTS_FILE, **{k: v.astype(np.float32) if v.dtype.kind == "f"
                                         else v for k, v in weights.items()})
@@ -164,17 +166,18 @@ def save_averaged_bundle(packs: Sequence, config_file: str | os.PathLike,
 
 def write_bundle(run_dir: str | os.PathLike, out_dir: str | os.PathLike,
                  provenance: dict | None = None, which: str = "best",
-                 figures: dict | None = None, estimate: str | None = None) -> Path:
+                 figures: dict | None = None, estimate: str | None = None,
+                 mode_pick: int | None = None) -> Path:
     """The bundle of a training run (its best validated checkpoint by default), with
-    ``figures`` as :func:`save_bundle` takes them; ``estimate`` ('mean' or 'mode', when given)
-    is how the bundle reads its distances, whatever the run's configuration says (the weights
-    are the same either way: :mod:`gijax.nn.regressor`)."""
+    ``figures`` as :func:`save_bundle` takes them; ``estimate`` ('mean' or 'mode') and
+    ``mode_pick``, when given, are how the bundle reads its distances, whatever the run's
+    configuration says (the weights are the same either way: :mod:`gijax.nn.regressor`)."""
     from gijax.nn.regressor import check_estimate
     from gijax.store.runs import load_for_inference
 
-    if estimate is not None:
-        check_estimate(estimate)            # before the checkpoint is read
+    if estimate is not None or mode_pick is not None:
+        check_estimate(estimate or "mode", 0, mode_pick or 0)   # before the checkpoint is read
     run_dir = Path(run_dir)
     model, _, cand = load_for_inference(run_dir, which=which)
     return save_bundle(model, run_dir / CONFIG_FILE, out_dir, provenance, candidates=cand,
-                       figures=figures, estimate=estimate)
+                       figures=figures, estimate=estimate, mode_pick=mode_pick)
