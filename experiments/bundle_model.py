@@ -77,6 +77,10 @@ and fine-tune it so on the mixture's four draws (:data:`DENSE_RECIPES`), compare
 
     python experiments/bundle_model.py --scale cpu --recipe dense --design G16VV-cpu-zncc --until 600
 
+The bundled ``G32VV-cpu-zncc-mix4`` (the demo's default) is its best validated step, 450, read
+at a pick of one candidate (chosen on the validation set), published with ``--until 600
+--estimate mode --mode-pick 1 --publish gijax/assets/G32VV-cpu-zncc-mix4``.
+
 Every recipe kind is one entry of :data:`KINDS`: its recipes, report section, start, the model
 it is compared with, its network and what it changes in it.
 """
@@ -350,18 +354,24 @@ RECIPE_KINDS = tuple(KINDS)
 # the provenance.
 ESTIMATE_WORDS = {"mean": "soft-argmax (the mean over the candidates)",
                   "mode": "sub-pixel mode (the mean within two candidates of the most probable "
-                          "one; the training validated the same weights by their mean)"}
+                          "one)"}
 
 
-def reading_words(reading: dict) -> str:
+def reading_words(reading: dict, validated=None) -> str:
     """How a bundle read by ``reading`` (``estimate`` and ``mode_pick``, each optional) reads
-    its distances, in words ('' for the run's own reading)."""
+    its distances, in words ('' for the run's own reading), and how the training validated the
+    same weights where that differs (``validated``: the run's ModelConfig, when known)."""
     words = []
     if reading.get("estimate"):
         words.append(ESTIMATE_WORDS[reading["estimate"]])
     if reading.get("mode_pick"):
         words.append(f"the most probable candidate being the one with the most probability "
                      f"within {reading['mode_pick']} on each side")
+    if validated is not None and words:
+        own = ESTIMATE_WORDS[validated.estimate].split(" (")[0]
+        if validated.estimate == "mode":
+            own += f" at a pick of {validated.mode_pick}"
+        words.append(f"the training validated the same weights by their {own}")
     return "; ".join(words)
 DEFAULT_DESIGN = "G16VV-cpu"
 # The start record of a run trained in pieces, inside its pack (see initial_weights).
@@ -825,8 +835,10 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
     distances."""
     from gijax.train.bundle import write_bundle
 
+    from gijax.train.config import load_run_config
+
     reading = {k: v for k, v in (reading or {}).items() if v is not None}
-    words = reading_words(reading)
+    words = reading_words(reading, load_run_config(run)[1])
     mix = [d for d in data if d["role"].startswith("mix-")]
     records = metrics_records(run)
     lenses = sum(1 for d in mix if d["role"].startswith("mix-lens-"))

@@ -21,7 +21,7 @@ from gijax.io.paths import save_figure_atomic, write_json_atomic
 
 # The bundled model the demo runs unless told otherwise (gijax/assets, see 'gijax models'):
 # the most accurate on the held-out rigs (README, "Bundled models").
-DEFAULT_MODEL = "G16VV-cpu-zncc-mix3"
+DEFAULT_MODEL = "G32VV-cpu-zncc-mix4"
 DEMO_RIGS = ("paper-train", "paper-test3")
 # Scenes per rig: enough that one lucky draw does not decide the verdict, few enough that the
 # demo stays under two minutes on two cores.
