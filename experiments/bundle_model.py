@@ -62,7 +62,7 @@ bundle), on all three draws of the mixture (:data:`THIRD_RECIPES`), and is compa
 
     python experiments/bundle_model.py --scale cpu --recipe third --design G16VV-cpu-zncc --until 1200
 
-The bundled ``G16VV-cpu-zncc-mix3`` (the demo's default) is its best validated step, 1000,
+The bundled ``G16VV-cpu-zncc-mix3`` (the demo's previous default) is its best validated step, 1000,
 published with ``--until 1200 --estimate mode --publish gijax/assets/G16VV-cpu-zncc-mix3``.
 
 The fourth draw (``--recipe fourth``) continues the third draw's network, read from its
