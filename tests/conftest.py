@@ -12,36 +12,33 @@ if os.environ.get("GIJAX_TEST_XLA_DEFAULTS") != "1":
     if _FLAG not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + _FLAG).strip()
 
-# One persistent compilation cache per test run, shared by the xdist workers and every process
-# they start (all inherit the environment): files compile the same programs again (a tiny
-# network's training step, the CLI's predictors and exports, the experiments' smoke runs), and
-# with one folder each is compiled once per run rather than once per worker. A size limit turns
-# on JAX's file lock around every read and write of the folder, so no process reads an entry
-# another is writing (JAX writes entries in place). Only programs that take a while to compile
-# are stored; the thousands of small eager ops would cost more to write than to compile. The
-# process that made the folder (the xdist controller, or pytest itself without xdist) removes
-# it. GIJAX_TEST_COMPILE_CACHE=0 turns it off; a JAX_COMPILATION_CACHE_DIR set by the caller is
-# used as it is and never removed.
+# One persistent compilation cache per test process, shared with every subprocess it starts
+# (they inherit the environment): files compile the same programs again (a tiny network's
+# training step, the CLI's predictors and exports, the experiments' smoke runs), and each is
+# compiled once per worker. Per process, not per run: JAX writes an entry in place, so a second
+# xdist worker could read one half-written, and its warning would reach the stderr that tests
+# read. Only programs that take a while to compile are stored; the thousands of small eager ops
+# would cost more to write than to compile. The process that made a folder removes it.
+# GIJAX_TEST_COMPILE_CACHE=0 turns it off; a JAX_COMPILATION_CACHE_DIR set by the caller is used
+# as it is and never removed.
 _OWN_CACHE_VAR = "GIJAX_TEST_OWN_COMPILE_CACHE"      # "<pid>:<folder>" of the folder's maker
-if os.environ.get("GIJAX_TEST_COMPILE_CACHE") != "0":
-    if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
-        import tempfile
+if os.environ.get("GIJAX_TEST_COMPILE_CACHE") != "0" and (
+        "JAX_COMPILATION_CACHE_DIR" not in os.environ
+        or os.environ.get(_OWN_CACHE_VAR, "").split(":", 1)[0] not in ("", str(os.getpid()))):
+    import tempfile
 
-        os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="gijax-test-xla-cache-")
-        os.environ[_OWN_CACHE_VAR] = f"{os.getpid()}:{os.environ['JAX_COMPILATION_CACHE_DIR']}"
-        os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
-    os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(8 << 30))
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="gijax-test-xla-cache-")
+    os.environ[_OWN_CACHE_VAR] = f"{os.getpid()}:{os.environ['JAX_COMPILATION_CACHE_DIR']}"
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
-if os.environ.get(_OWN_CACHE_VAR):
+if os.environ.get(_OWN_CACHE_VAR, "").startswith(f"{os.getpid()}:"):
     # In case a plugin imported JAX before this file set its environment.
     jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
     jax.config.update("jax_persistent_cache_min_compile_time_secs",
                       float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
-    jax.config.update("jax_compilation_cache_max_size",
-                      int(os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"]))
 
 
 def pytest_unconfigure(config):
@@ -94,12 +91,11 @@ def pytest_collection_modifyitems(config, items):
 def persistent_compile_cache(folder):
     """Generator for a fixture: JAX's persistent compilation cache in ``folder`` with every
     program cached (the training tests and their subprocesses share one folder, so a training
-    step compiles once) and JAX's file lock on (a size limit), the previous settings restored
-    afterwards."""
+    step compiles once), the previous settings restored afterwards."""
     names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
-             "jax_persistent_cache_min_entry_size_bytes", "jax_compilation_cache_max_size")
+             "jax_persistent_cache_min_entry_size_bytes")
     old = [getattr(jax.config, n) for n in names]
-    for name, value in zip(names, (str(folder), 0.0, 0, 8 << 30)):
+    for name, value in zip(names, (str(folder), 0.0, 0)):
         jax.config.update(name, value)
     yield
     for name, value in zip(names, old):

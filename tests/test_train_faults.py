@@ -74,13 +74,8 @@ if __name__ == "__main__":
 '''
 
 
-# The compile cache the subprocess tests share with each other and with test_train.py: the
-# run's own (conftest.py), so a training step compiled by one worker serves the other; a fixed
-# folder when the run has none (GIJAX_TEST_COMPILE_CACHE=0). Every process that writes it keeps
-# JAX's access-time files (a size limit; conftest.py and child_env), which its eviction reads.
-CACHE = Path(os.environ.get("GIJAX_TEST_JAX_CACHE")
-             or os.environ.get("JAX_COMPILATION_CACHE_DIR")
-             or "/tmp/gijax-test-jax-cache-lru")
+# The compile cache the subprocess tests share with each other and with test_train.py.
+CACHE = Path(os.environ.get("GIJAX_TEST_JAX_CACHE", "/tmp/gijax-test-jax-cache"))
 
 
 def child_env(cache_dir, optimised=False):
