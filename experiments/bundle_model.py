@@ -669,8 +669,8 @@ def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
     """Rows (model, list, test rig, metrics) for every model in ``models`` (label -> path)
     with each of ``lists`` (the training and the recomputed list), and RTSS, on every test
     set of ``tests``. ``readings`` (label -> {'estimate': 'mean' or 'mode', 'mode_pick': n},
-    each optional) reads a model otherwise than its configuration does (``gijax eval
-    --estimate``)."""
+    each key optional, none None) reads a model otherwise than its configuration does
+    (``gijax eval --estimate``)."""
     readings = readings or {}
     rows, preds = [], {}
     for test in tests:
@@ -686,7 +686,7 @@ def evaluate(work: Path, scale: Scale, models: dict, tests=TESTS,
                 log(f"  {label}, {lst} list, on {test}")
                 key = {"method": label, "model": model_id(path), "data": test, "samples": n,
                        "candidates": lst}
-                reading = {k: v for k, v in readings.get(label, {}).items() if v is not None}
+                reading = readings.get(label, {})
                 key.update(reading)
                 res = cached_evaluation(
                     work, key,
@@ -834,10 +834,9 @@ def publish(run: Path, bundle: Path, model: str, recipe: Recipe, figures: dict, 
     ``reading`` (``estimate``, ``mode_pick``; each when given) is how the bundle reads its
     distances."""
     from gijax.train.bundle import write_bundle
-
     from gijax.train.config import load_run_config
 
-    reading = {k: v for k, v in (reading or {}).items() if v is not None}
+    reading = reading or {}
     words = reading_words(reading, load_run_config(run)[1])
     mix = [d for d in data if d["role"].startswith("mix-")]
     records = metrics_records(run)

@@ -150,13 +150,11 @@ def net_predictor(run_dir: Path, rig, candidates_spec: str,
     (:mod:`gijax.nn.regressor`; None: the model's own).
     """
     from gijax.candidates.spec import model_candidates
-    from gijax.model import reconfigured, with_estimate
+    from gijax.model import with_estimate
     from gijax.predict import LearnedImagePredictor
 
     model, mc, train_cand = loaded_model(run_dir)
-    model = with_estimate(model, estimate)
-    if mode_pick is not None and mode_pick != model.config.mode_pick:
-        model = reconfigured(model, mode_pick=mode_pick)
+    model = with_estimate(model, estimate, mode_pick)
     mc = model.config
     cand, _ = model_candidates(candidates_spec, rig, mc, train=train_cand)
     return _one_sample(LearnedImagePredictor(model, rig, cand), _example(rig, np.uint8))

@@ -346,12 +346,14 @@ def reconfigured(model: OmniStereoNet, **changes) -> OmniStereoNet:
     return new
 
 
-def with_estimate(model: OmniStereoNet, estimate: str | None) -> OmniStereoNet:
-    """``model`` read by ``estimate`` ('mean' or 'mode', :mod:`gijax.nn.regressor`; None or its
-    own: ``model`` itself), as ``--estimate`` asks (:func:`reconfigured`)."""
-    if estimate is None or estimate == model.config.estimate:
-        return model
-    return reconfigured(model, estimate=estimate)
+def with_estimate(model: OmniStereoNet, estimate: str | None,
+                  mode_pick: int | None = None) -> OmniStereoNet:
+    """``model`` read by ``estimate`` ('mean' or 'mode', :mod:`gijax.nn.regressor`) and, for
+    the mode, ``mode_pick`` (None or its own: unchanged; neither changed: ``model`` itself), as
+    ``--estimate`` asks (:func:`reconfigured`)."""
+    changes = {k: v for k, v in (("estimate", estimate), ("mode_pick", mode_pick))
+               if v is not None and v != getattr(model.config, k)}
+    return reconfigured(model, **changes) if changes else model
 
 
 def count_parameters(config: ModelConfig | str) -> dict[str, int]:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from flax import nnx
 
-from gijax.model import create_model
+from gijax.model import create_model, with_estimate
 from gijax.nn.presets import get_preset
 from gijax.store import is_bundle, load_bundle, load_model
 from gijax.store.bundles import WEIGHTS_FILE
@@ -82,6 +82,17 @@ def test_a_bundle_written_with_another_estimate_reads_the_same_weights_so(tmp_pa
     out = loaded.regress(logits, jnp.asarray(cand, jnp.float32))
     want = estimate_inverse(out["prob"], 1.0 / jnp.asarray(cand, jnp.float32), "mode", 2, 1)
     np.testing.assert_allclose(np.asarray(out["inv_distance"]), np.asarray(want), rtol=1e-6)
+    # Read at Tulyakov's rule instead (--estimate's mechanism), the same weights give pick 0's,
+    # which differ from pick 1's on these logits.
+    assert with_estimate(loaded, "mode", 1) is loaded
+    tulyakov = with_estimate(loaded, None, 0)
+    assert tulyakov.config == dataclasses.replace(mc, mode_pick=0)
+    np.testing.assert_allclose(
+        np.asarray(tulyakov.regress(logits, jnp.asarray(cand, jnp.float32))["inv_distance"]),
+        np.asarray(estimate_inverse(out["prob"], 1.0 / jnp.asarray(cand, jnp.float32), "mode",
+                                    2, 0)), rtol=1e-6)
+    assert np.abs(np.asarray(tulyakov.regress(logits, jnp.asarray(cand, jnp.float32))
+                             ["inv_distance"]) - np.asarray(want)).max() > 1e-3
     with pytest.raises(ValueError, match="pick"):
         save_bundle(model, config_file, tmp_path / "never", mode_pick=-1)
     with pytest.raises(ValueError, match="estimate"):
