@@ -91,11 +91,15 @@ def pytest_collection_modifyitems(config, items):
 def persistent_compile_cache(folder):
     """Generator for a fixture: JAX's persistent compilation cache in ``folder`` with every
     program cached (the training tests and their subprocesses share one folder, so a training
-    step compiles once), the previous settings restored afterwards."""
+    step compiles once), the previous settings restored afterwards. With the same size limit as
+    the subprocesses (``test_train_faults.child_env``): a limit makes JAX write each entry's
+    access-time file, which a subprocess's eviction reads for every entry in the folder, so an
+    entry written here without one would make every write there fail with a warning on its
+    stderr."""
     names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
-             "jax_persistent_cache_min_entry_size_bytes")
+             "jax_persistent_cache_min_entry_size_bytes", "jax_compilation_cache_max_size")
     old = [getattr(jax.config, n) for n in names]
-    for name, value in zip(names, (str(folder), 0.0, 0)):
+    for name, value in zip(names, (str(folder), 0.0, 0, 8 << 30)):
         jax.config.update(name, value)
     yield
     for name, value in zip(names, old):
